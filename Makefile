@@ -1,0 +1,39 @@
+# eha_health developer entry points.  Needs only python3 (>= 3.10) on PATH.
+#   make demo   - set up .venv (with the ros and test extras) and run the demo
+#   make test   - set up .venv and run the test suite
+#   make bench  - set up .venv and run the speed benchmark
+#   make venv   - (alias: setup) only set up .venv
+#   make clean  - remove .venv and build/test leftovers
+
+PYTHON ?= python3
+VENV := .venv
+STAMP := $(VENV)/.eha-health-installed
+PYTEST_ARGS ?=
+
+# Keep rcl's logs inside the work tree (not ~/.ros) and DDS discovery local.
+export ROS_LOG_DIR ?= $(CURDIR)/.ros/log
+export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
+
+.PHONY: demo test bench venv setup clean
+
+demo: $(STAMP)
+	$(VENV)/bin/eha-health demo
+
+test: $(STAMP)
+	$(VENV)/bin/python -m pytest -q tests $(PYTEST_ARGS)
+
+bench: $(STAMP)
+	$(VENV)/bin/eha-health bench speed
+
+venv setup: $(STAMP)
+
+# The install is redone only when the packaging metadata changes.
+$(STAMP): setup.py setup.cfg
+	test -x $(VENV)/bin/python || $(PYTHON) -m venv $(VENV)
+	$(VENV)/bin/pip install --quiet --upgrade pip
+	$(VENV)/bin/pip install -e ".[ros,test]"
+	touch $@
+
+clean:
+	rm -rf $(VENV) build install log .ros .pytest_cache *.egg-info src/*.egg-info
+	find . -path ./.git -prune -o -type d -name __pycache__ -prune -exec rm -rf {} +

@@ -1,0 +1,13 @@
+"""eha_health: health monitoring of electrohydraulic servo actuators.
+
+Physics (reference and monitor EHA models), the FDI test sequence and the fault
+signatures. Nothing here imports ROS: the same code runs in a notebook, a batch
+job or a node.
+"""
+from .model import Plant, simulate, simulate_batch
+from .params import Faults, ModelParams, load
+from .response import Response
+from .sequence import FDISequence
+
+__all__ = ["Faults", "FDISequence", "ModelParams", "Plant", "Response", "load", "simulate", "simulate_batch"]
+__version__ = "0.1.0"

@@ -1,0 +1,88 @@
+"""Plots (matplotlib, headless): responses and the paper-style signature families."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from .model import simulate  # noqa: E402
+from .params import Faults, ModelParams  # noqa: E402
+from .response import Response  # noqa: E402
+
+_CH = (("position", 1e3, "position [mm]"), ("velocity", 1e3, "velocity [mm/s]"),
+       ("pressure", 1e-6, "P12 [MPa]"), ("current", 1e3, "current [mA]"), ("spool", 1e3, "spool [mm]"))
+
+
+def plot_response(r: Response, path: str | Path, title: str = "", others: dict[str, Response] | None = None):
+    """Every channel against time; ``others`` overlays further responses by label."""
+    fig, axes = plt.subplots(len(_CH), 1, figsize=(10, 11), sharex=True)
+    for ax, (name, scale, label) in zip(axes, _CH):
+        if name == "position":
+            ax.plot(r.t, r.command * scale, color="0.6", lw=0.8, label="command")
+        ax.plot(r.t, getattr(r, name) * scale, lw=1.0, label=r.meta.get("label", "response"))
+        for lab, o in (others or {}).items():
+            ax.plot(o.t, getattr(o, name) * scale, "--", lw=0.9, label=lab)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+# (fault, channel, time window [s], scale, y label, figure title) -- paper Figs. 4-7
+FAMILIES = (
+    ("k_gm", "position", (0.98, 1.12), 1e3, "position [mm]", "Fig. 4 - step response vs torque-motor gain loss K_GM"),
+    ("k_fsj", "pressure", (0.0, 1.0), 1e-6, "P12 [MPa]", "Fig. 5 - ramp differential pressure vs static friction K_FSJ"),
+    ("k_bkl", "position", (0.0, 0.12), 1e3, "position [mm]", "Fig. 6 - ramp position vs backlash K_BKL"),
+    ("k_bkl", "current", (0.0, 0.12), 1e3, "current [mA]", "Fig. 7 - breakaway current vs backlash K_BKL"),
+)
+
+
+def plot_signature_families(out_dir: str | Path, levels=(0.0, 0.2, 0.4, 0.6, 0.8, 1.0),
+                            params: ModelParams | None = None, progress=None) -> list[Path]:
+    """One figure per paper figure, a curve per fault level; returns the written files."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cache: dict[tuple, Response] = {}
+    files = []
+    for i, (fault, ch, (a, b), scale, ylabel, title) in enumerate(FAMILIES, 1):
+        fig, ax = plt.subplots(figsize=(8, 4.5))
+        for k in levels:
+            key = (fault, k)
+            if key not in cache:
+                cache[key] = simulate(faults=Faults(**{fault: k}), params=params)
+                if progress:
+                    progress(f"simulated {fault}={k:g}")
+            r = cache[key]
+            m = (r.t >= a) & (r.t <= b)
+            ax.plot(r.t[m], getattr(r, ch)[m] * scale, label=f"{fault.upper()} = {k:g}")
+        if ch == "position":
+            ax.plot(r.t[m], r.command[m] * scale, color="0.5", lw=0.8, ls=":", label="command")
+        ax.set_xlabel("t [s]")
+        ax.set_ylabel(ylabel)
+        ax.set_title(title, fontsize=10)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        path = out_dir / f"fig{i + 3}_{fault[2:]}_{ch}.png"
+        fig.savefig(path, dpi=90)
+        plt.close(fig)
+        files.append(path)
+    return files
+
+
+def trend_table(levels=(0.0, 0.2, 0.4, 0.6, 0.8, 1.0), params: ModelParams | None = None) -> list[dict]:
+    """Signature values per single fault and level (rows for a CSV or JSON report)."""
+    from .signatures import signatures
+    rows = []
+    for fault in ("k_gm", "k_fsj", "k_bkl"):
+        for k in levels:
+            s = signatures(simulate(faults=Faults(**{fault: k}), params=params))
+            rows.append({"fault": fault, "level": k, **s.as_dict()})
+    return rows

@@ -1,0 +1,74 @@
+"""A simulated or measured test response: SI channels on a common time base, CSV I/O.
+
+CSV format (``eha-health simulate``): header ``t,command,position,velocity,pressure,
+current,spool`` then one row per sample. t [s]; command, position [m]; velocity [m/s];
+pressure = jack differential pressure P12 [Pa]; current = servovalve current [A];
+spool = spool position [m]. Position and velocity are what the position transducer
+sees: the surface (user) side of the backlash.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+CSV_COLUMNS = ("t", "command", "position", "velocity", "pressure", "current", "spool")
+UNITS = {"t": "s", "command": "m", "position": "m", "velocity": "m/s", "pressure": "Pa",
+         "current": "A", "spool": "m", "jack_position": "m"}
+
+
+@dataclass
+class Response:
+    """Channels as 1-D float arrays of equal length; ``meta`` says where they came from."""
+    t: np.ndarray
+    command: np.ndarray
+    position: np.ndarray
+    velocity: np.ndarray
+    pressure: np.ndarray
+    current: np.ndarray
+    spool: np.ndarray
+    jack_position: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def sample_rate(self) -> float:
+        return 1.0 / float(np.median(np.diff(self.t)))
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def to_csv(self, path: str | Path) -> None:
+        data = np.column_stack([getattr(self, c) for c in CSV_COLUMNS])
+        np.savetxt(path, data, delimiter=",", header=",".join(CSV_COLUMNS), comments="", fmt="%.10g")
+
+    @classmethod
+    def from_csv(cls, path: str | Path) -> "Response":
+        """Read a CSV in the format above; ``ValueError`` names what is wrong."""
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"{path}: no such file")
+        with path.open() as f:
+            header = f.readline().strip()
+        cols = [c.strip() for c in header.split(",")]
+        missing = [c for c in CSV_COLUMNS if c not in cols]
+        if missing:
+            raise ValueError(f"{path}: missing column(s) {', '.join(missing)} (header: {header!r})")
+        try:
+            data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+        except ValueError as e:
+            raise ValueError(f"{path}: unreadable numeric data ({e})") from None
+        if data.shape[0] < 2:
+            raise ValueError(f"{path}: fewer than 2 samples")
+        if data.shape[1] != len(cols):
+            raise ValueError(f"{path}: {data.shape[1]} values per row but {len(cols)} columns in the header")
+        ch = {c: data[:, cols.index(c)] for c in CSV_COLUMNS}
+        for c, v in ch.items():
+            bad = ~np.isfinite(v)
+            if bad.any():
+                raise ValueError(f"{path}: column {c} has {bad.sum()} NaN/inf value(s), first at row {np.argmax(bad) + 2}")
+        dt = np.diff(ch["t"])
+        if (dt <= 0).any():
+            i = int(np.argmax(dt <= 0))
+            raise ValueError(f"{path}: time axis not strictly increasing at row {i + 3} (t={ch['t'][i + 1]})")
+        return cls(**ch, meta={"source": str(path)})
