@@ -17,13 +17,12 @@ import numpy as np
 import yaml
 from scipy.optimize import least_squares
 
+from .fitness import CHANNEL_SCALES
 from .model import Plant, response_from_rows, simulate
 from .params import Faults, ModelParams, load
 from .response import Response
 from .sequence import FDISequence
 
-#: Residual scale per channel: a difference of one scale weighs one unit.
-CHANNEL_SCALES = {"position": 1e-4, "velocity": 5e-3, "pressure": 5e5, "current": 5e-4, "spool": 2e-5}
 CALIBRATION_CHANNELS = ("position", "pressure", "current", "spool")
 #: Pressure weighs less: while the jack is stuck P12 rests anywhere in the friction band,
 #: depending on history, so it is a noisy calibration target.

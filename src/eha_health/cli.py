@@ -98,11 +98,61 @@ def cmd_signatures(args) -> int:
 
 
 def cmd_bench(args) -> int:
-    from .bench import format_speed, speed
-    if args.what != "speed":
-        raise UsageError(f"unknown benchmark {args.what!r}; available: speed")
-    res = speed(with_compile=not args.no_compile)
-    print(json.dumps(res, indent=2) if args.json else format_speed(res))
+    if args.what == "speed":
+        from .bench import format_speed, speed
+        res = speed(with_compile=not args.no_compile)
+        print(json.dumps(res, indent=2) if args.json else format_speed(res))
+        return 0
+    if args.what != "paper":
+        raise UsageError(f"unknown benchmark {args.what!r}; available: speed, paper")
+    from .identify import METHODS
+    from .paperbench import format_markdown, format_text, run_bench
+    methods = METHODS if args.method == "all" else (args.method,)
+    if args.method != "all" and args.method not in METHODS:
+        raise UsageError(f"unknown method {args.method!r}; choose from {', '.join(METHODS)} or all")
+    if args.random < 0:
+        raise UsageError("--random must be >= 0")
+    progress = None if (args.json or args.quiet) else (lambda m: print("  " + m, file=sys.stderr, flush=True))
+    res = run_bench(methods, fitness=args.fitness, noise=args.noise, n_random=args.random, seed=args.seed,
+                    de=not args.no_de, progress=progress)
+    if args.markdown:
+        cmd = "eha-health " + " ".join(args.raw)
+        Path(args.markdown).write_text(format_markdown(res, cmd))
+    print(json.dumps(res, indent=2, default=float) if args.json else format_text(res))
+    return 0
+
+
+def _progress_line(msg: str) -> None:
+    print("  " + msg, file=sys.stderr, flush=True)
+
+
+def cmd_diagnose(args) -> int:
+    from .identify import diagnose
+    from .response import Response
+    path = Path(args.run)
+    if path.suffix.lower() == ".mcap":
+        raise UsageError(f"{path}: MCAP input arrives with the node-graph issue; give a CSV from `eha-health simulate`")
+    r = Response.from_csv(path)
+    progress = None if (args.json or args.quiet) else _progress_line
+    d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=progress)
+    if args.plot:
+        from .plotting import plot_diagnosis
+        plot_diagnosis(r, d, args.plot)
+    if args.json:
+        print(json.dumps(d.as_dict(), default=float))
+        return 0
+    k = d.faults
+    print(f"diagnosis of {path} ({d.method}, fitness {d.fitness}, seed {d.seed}):")
+    for name, val in zip(("K_GM ", "K_FSJ", "K_BKL"), k.as_tuple()):
+        key = "k_" + name.strip().lower()[2:]
+        print(f"  {name} = {val:.4f} +/- {d.std[key]:.4f}  (0 healthy, 1 limit)")
+    print(f"  fit RMS: position {d.rms['position'] * 1e6:.1f} um, pressure {d.rms['pressure'] / 1e3:.1f} kPa, "
+          f"current {d.rms['current'] * 1e6:.1f} uA;  fitness {d.cost:.4g}")
+    print(f"  {d.evaluations} monitor simulations in {d.wall_time_s:.2f} s")
+    for w in d.warnings:
+        print(f"  warning: {w}")
+    if args.plot:
+        print(f"  plot: {args.plot}")
     return 0
 
 
@@ -164,11 +214,29 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--quiet", action="store_true")
     g.set_defaults(func=cmd_signatures)
 
-    b = sub.add_parser("bench", help="benchmarks")
-    b.add_argument("what", help="speed")
+    b = sub.add_parser("bench", help="benchmarks: speed | paper")
+    b.add_argument("what", help="speed or paper")
     b.add_argument("--json", action="store_true")
-    b.add_argument("--no-compile", action="store_true", help="skip the fresh-process compile-time measurement")
+    b.add_argument("--no-compile", action="store_true", help="speed: skip the fresh-process compile-time measurement")
+    b.add_argument("--method", default="all", help="paper: deterministic, ga, hybrid or all")
+    b.add_argument("--fitness", choices=("lsq", "paper"), default="lsq", help="paper: fitness function")
+    b.add_argument("--noise", action="store_true", help="paper: default sensor noise on the reference runs")
+    b.add_argument("--random", type=int, default=0, metavar="N", help="paper: add N random K triples in [0,1]^3")
+    b.add_argument("--seed", type=int, default=0, help="paper: seed of random cases, noise and GA")
+    b.add_argument("--no-de", action="store_true", help="paper: skip the scipy differential_evolution peer")
+    b.add_argument("--markdown", help="paper: write the tables to this Markdown file")
+    b.add_argument("--quiet", action="store_true")
     b.set_defaults(func=cmd_bench)
+
+    q = sub.add_parser("diagnose", help="identify the fault coefficients of a recorded test (CSV)")
+    q.add_argument("run", help="CSV in the simulate format")
+    q.add_argument("--method", choices=("hybrid", "deterministic", "ga"), default="hybrid")
+    q.add_argument("--fitness", choices=("lsq", "paper"), default="lsq")
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--json", action="store_true", help="print one JSON object")
+    q.add_argument("--plot", help="PNG: measured vs fitted per channel, and the convergence")
+    q.add_argument("--quiet", action="store_true")
+    q.set_defaults(func=cmd_diagnose)
 
     d = sub.add_parser("demo", help="simulate a faulty actuator, print signatures, write a plot")
     d.add_argument("--faults", default="gm=0.4,fsj=0.6,bkl=0.4")
@@ -179,6 +247,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    args.raw = list(argv) if argv is not None else sys.argv[1:]
     try:
         return args.func(args)
     except (UsageError, ValueError, FileNotFoundError) as e:

@@ -86,3 +86,27 @@ def trend_table(levels=(0.0, 0.2, 0.4, 0.6, 0.8, 1.0), params: ModelParams | Non
             s = signatures(simulate(faults=Faults(**{fault: k}), params=params))
             rows.append({"fault": fault, "level": k, **s.as_dict()})
     return rows
+
+
+def plot_diagnosis(measured: Response, diagnosis, path: str | Path):
+    """Measured vs fitted monitor response per channel, and the convergence history."""
+    fitted = diagnosis.fitted
+    chans = [c for c in _CH if c[0] != "spool"]
+    fig, axes = plt.subplots(len(chans) + 1, 1, figsize=(10, 12))
+    for ax, (name, scale, label) in zip(axes, chans):
+        ax.plot(measured.t, getattr(measured, name) * scale, lw=1.0, label="measured")
+        ax.plot(fitted.t, getattr(fitted, name) * scale, "--", lw=0.9, label="monitor fit")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[0].legend(loc="upper right", fontsize=8)
+    axes[len(chans) - 1].set_xlabel("t [s]")
+    h = axes[-1]
+    h.semilogy(diagnosis.history, lw=1.0)
+    h.set_xlabel("iteration (deterministic stages, GA generations, local refinement)")
+    h.set_ylabel("fitness")
+    h.grid(alpha=0.3)
+    k = diagnosis.faults
+    fig.suptitle(f"{diagnosis.method}: K_GM={k.k_gm:.3f}  K_FSJ={k.k_fsj:.3f}  K_BKL={k.k_bkl:.3f}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

@@ -1,0 +1,229 @@
+"""``eha-health bench paper``: our identification against the paper's Tables 1 and 3-6.
+
+Cases: the single-fault cases of Tables 1/3 (each fault alone at 0, 0.4, 0.6,
+1.0) and the 16 combined cases of Tables 4/5, simulated on the reference model
+(optionally with the default sensor noise), diagnosed by each method, printed
+next to the paper's published estimates. Errors: Eq. (2) percent error
+``(K - K_est)/K`` (absolute error where K = 0, where Eq. 2 is undefined); Eq. (3)
+mean of |% err| over the defined coefficients; the Table 6 summary (largest
+|% err| per coefficient, largest mean) next to the paper's rows. scipy's
+``differential_evolution`` on the same fitness runs as an independent peer.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import differential_evolution
+
+from .fitness import Measured, make_fitness
+from .identify import UPPER, Evaluator, diagnose
+from .model import simulate
+from .params import Faults, load
+
+# ---- the paper's published values
+PAPER_SINGLE = {  # method -> fault -> [(true, estimated)]  (Tables 1 and 3)
+    "deterministic": {"fsj": [(0, .00084), (.4, .40083), (.6, .60081), (1, 1.0008)],
+                      "gm": [(0, .02094), (.4, .40269), (.6, .60213), (1, 1.0024)],
+                      "bkl": [(0, 0.0), (.4, .39891), (.6, .60365), (1, .99)]},
+    "ga": {"fsj": [(0, .00084), (.4, .40094), (.6, .60105), (1, .99)],
+           "gm": [(0, .00539), (.4, .40428), (.6, .60373), (1, .99)],
+           "bkl": [(0, .00047), (.4, .40415), (.6, .60503), (1, .99)]},
+}
+COMBINED = [(0, 0, 0), (.4, .4, .4), (.4, .4, .6), (.6, .4, .4), (.4, .6, .4), (.6, .4, .6), (.6, .6, .4),
+            (.4, .6, .6), (.6, .6, .6), (1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 1, 0), (1, 0, 1), (0, 1, 1),
+            (1, 1, 1)]  # (K_GM, K_FSJ, K_BKL), Tables 4/5
+PAPER_COMBINED = {
+    "deterministic": [(.02075, .00084, 0), (.40944, .40083, .40612), (.40944, .40075, .60851),
+                      (.60775, .40058, .40561), (.413, .60088, .40794), (.60781, .40067, .60719),
+                      (.61056, .60061, .40835), (.41306, .60076, .60939), (.61056, .60067, .60811),
+                      (1.0023, .00053, .00516), (.07963, 1.0008, .00543), (.02081, .00071, .99),
+                      (1.0106, 1.0003, .00701), (1.0024, .00864, .99), (.07956, 1.0008, .99),
+                      (1.0106, 1.0, .99)],
+    "ga": [(.00531, .00084, .00003), (.41154, .40083, .3983), (.41214, .40076, .59807), (.60985, .40058, .39765),
+           (.41546, .60089, .39724), (.60925, .40066, .59761), (.61303, .60062, .39657), (.42636, .60077, .63025),
+           (.62888, .60066, .59008), (.99, .00053, .0007), (.04776, .98997, .00192), (.0198, .00041, .925),
+           (.99, .99, .01869), (.99, .00001, .99), (.0435, .99, .99), (.99, .99, .99)],
+}
+PAPER_TABLE6 = {"deterministic": (0.21, 2.5, 2.0, 1.8), "ga": (0.21, 4.0, 1.0, 1.6)}  # FSJ, GM, BKL, mean [%]
+KEYS = ("gm", "fsj", "bkl")
+
+
+def single_cases() -> list[tuple[float, float, float]]:
+    out = [(0.0, 0.0, 0.0)]
+    for i in range(3):
+        for k in (0.4, 0.6, 1.0):
+            c = [0.0, 0.0, 0.0]
+            c[i] = k
+            out.append(tuple(c))
+    return out
+
+
+def pct_errors(true, est):
+    """Eq. (2) per coefficient: percent where K != 0, else None (absolute error reported apart)."""
+    return [100.0 * (t - e) / t if t != 0 else None for t, e in zip(true, est)]
+
+
+def mean_pct(true, est):
+    """Eq. (3) over the coefficients where Eq. (2) is defined (None if none)."""
+    p = [abs(v) for v in pct_errors(true, est) if v is not None]
+    return float(np.mean(p)) if p else None
+
+
+@dataclass
+class Row:
+    case: tuple
+    est: tuple
+    std: tuple
+    wall_time_s: float
+    evaluations: int
+    group: str  # single / combined / random
+
+
+def run_de(resp, seed: int, fitness: str = "lsq"):
+    """scipy differential_evolution on the same fitness (vectorised over the batch simulator)."""
+    meas = Measured.from_response(resp)
+    fit = make_fitness(fitness, meas)
+    ev = Evaluator(meas)
+    t0 = time.perf_counter()
+    sol = differential_evolution(lambda X: fit.costs(ev.run(np.asarray(X).T)), [(0.0, UPPER)] * 3, seed=seed,
+                                 vectorized=True, updating="deferred", tol=1e-8, atol=0, maxiter=200,
+                                 popsize=15, polish=False)
+    return tuple(sol.x), time.perf_counter() - t0, ev.n
+
+
+def run_bench(methods=("deterministic", "ga", "hybrid"), fitness: str = "lsq", noise: bool = False,
+              n_random: int = 0, seed: int = 0, de: bool = True, progress=None) -> dict:
+    """Run every case with every method; returns a JSON-able dict of rows and summaries."""
+    params = load("reference")
+    if noise:
+        params = params.with_effects(sensor_noise={"enabled": True})
+    rng = np.random.default_rng(seed)
+    cases = [(c, "single") for c in single_cases()] + [(c, "combined") for c in COMBINED]
+    cases += [(tuple(np.round(rng.uniform(0, 1, 3), 4)), "random") for _ in range(n_random)]
+    responses = {}
+    for i, (c, _) in enumerate(cases):
+        if c not in responses:
+            responses[c] = simulate("reference", Faults(*c), params=params, seed=(seed * 1000 + i) if noise else None)
+    out = {"fitness": fitness, "noise": noise, "seed": seed, "methods": {}}
+    for m in methods:
+        rows = []
+        for c, group in cases:
+            d = diagnose(responses[c], method=m, fitness=fitness, seed=seed)
+            rows.append(Row(c, d.faults.as_tuple(), tuple(d.std[k] for k in ("k_gm", "k_fsj", "k_bkl")),
+                            d.wall_time_s, d.evaluations, group))
+            if progress:
+                progress(f"{m:13s} {group:8s} true {c} -> est ({rows[-1].est[0]:.4f}, {rows[-1].est[1]:.4f}, "
+                         f"{rows[-1].est[2]:.4f})  {d.wall_time_s:.2f} s")
+        out["methods"][m] = summarise(rows)
+    if de:
+        rows = []
+        for c, group in cases:
+            est, wt, n = run_de(responses[c], seed, fitness)
+            rows.append(Row(c, est, (np.nan,) * 3, wt, n, group))
+            if progress:
+                progress(f"{'scipy-DE':13s} {group:8s} true {c} -> est ({est[0]:.4f}, {est[1]:.4f}, {est[2]:.4f})  {wt:.2f} s")
+        out["methods"]["scipy_de"] = summarise(rows)
+    return out
+
+
+def summarise(rows: list[Row]) -> dict:
+    recs = []
+    for r in rows:
+        err = np.array(r.est) - np.array(r.case)
+        within = [abs(e) <= 2 * s if np.isfinite(s) and s > 0 else None for e, s in zip(err, r.std)]
+        recs.append({"group": r.group, "true": list(r.case), "est": [float(v) for v in r.est],
+                     "std": [float(v) for v in r.std], "pct_err": pct_errors(r.case, r.est),
+                     "abs_err": [float(v) for v in err], "mean_pct_err": mean_pct(r.case, r.est),
+                     "within_2sd": within, "wall_time_s": r.wall_time_s, "evaluations": r.evaluations})
+
+    def table6(groups):
+        sel = [x for x in recs if x["group"] in groups]
+        if not sel:
+            return None
+        mx = []
+        for i in range(3):
+            v = [abs(x["pct_err"][i]) for x in sel if x["pct_err"][i] is not None]
+            mx.append(max(v) if v else None)
+        means = [x["mean_pct_err"] for x in sel if x["mean_pct_err"] is not None]
+        # order as the paper's Table 6: FSJ, GM, BKL, mean
+        return {"fsj_pct": mx[1], "gm_pct": mx[0], "bkl_pct": mx[2], "mean_pct": max(means) if means else None,
+                "max_abs_err": float(max(max(abs(e) for e in x["abs_err"]) for x in sel))}
+
+    cov = [w for x in recs for w in x["within_2sd"] if w is not None]
+    return {"rows": recs,
+            "table6_paper_cases": table6(("single", "combined")),
+            "table6_random": table6(("random",)),
+            "max_abs_err_all": float(max(max(abs(e) for e in x["abs_err"]) for x in recs)),
+            "coverage_2sd": (float(np.mean(cov)) if cov else None),
+            "wall_time_s_mean": float(np.mean([x["wall_time_s"] for x in recs])),
+            "wall_time_s_max": float(np.max([x["wall_time_s"] for x in recs])),
+            "evaluations_mean": float(np.mean([x["evaluations"] for x in recs])),
+            "combined_table_wall_s": float(sum(x["wall_time_s"] for x in recs if x["group"] == "combined"))}
+
+
+def _f(v, fmt="{:.4f}"):
+    return "-" if v is None else fmt.format(v)
+
+
+def format_markdown(res: dict, command: str) -> str:
+    L = [f"Generated by `{command}` (fitness `{res['fitness']}`, noise {'on' if res['noise'] else 'off'}, "
+         f"seed {res['seed']}).", ""]
+    methods = res["methods"]
+    L.append("### Table 6 - largest errors over the paper's single and combined cases")
+    L.append("")
+    L.append("| method | K_FSJ % err | K_GM % err | K_BKL % err | mean % err | max abs err | mean time [s] | max time [s] | sims/diagnosis |")
+    L.append("|---|---|---|---|---|---|---|---|---|")
+    for m, s in methods.items():
+        t = s["table6_paper_cases"]
+        L.append(f"| {m} | {_f(t['fsj_pct'], '{:.3f}')} | {_f(t['gm_pct'], '{:.3f}')} | {_f(t['bkl_pct'], '{:.3f}')} | "
+                 f"{_f(t['mean_pct'], '{:.3f}')} | {t['max_abs_err']:.4f} | {s['wall_time_s_mean']:.2f} | "
+                 f"{s['wall_time_s_max']:.2f} | {s['evaluations_mean']:.0f} |")
+        if m in PAPER_TABLE6:
+            p = PAPER_TABLE6[m]
+            L.append(f"| paper {m} | < {p[0]} | < {p[1]} | < {p[2]} | < {p[3]} | | | | |")
+    if any(s["table6_random"] for s in methods.values()):
+        L += ["", "### Random cases", "", "| method | K_FSJ % err | K_GM % err | K_BKL % err | mean % err | max abs err | within 2 sd |",
+              "|---|---|---|---|---|---|---|"]
+        for m, s in methods.items():
+            t = s["table6_random"]
+            if t:
+                cov = s["coverage_2sd"]
+                L.append(f"| {m} | {_f(t['fsj_pct'], '{:.3f}')} | {_f(t['gm_pct'], '{:.3f}')} | {_f(t['bkl_pct'], '{:.3f}')} | "
+                         f"{_f(t['mean_pct'], '{:.3f}')} | {t['max_abs_err']:.4f} | {_f(cov, '{:.0%}')} |")
+    if "scipy_de" in methods and "hybrid" in methods:
+        a, b = methods["hybrid"], methods["scipy_de"]
+        L += ["", f"Peer ratio (scipy differential_evolution / hybrid): max abs error "
+                  f"{b['max_abs_err_all'] / max(a['max_abs_err_all'], 1e-12):.2f}x, mean wall time "
+                  f"{b['wall_time_s_mean'] / a['wall_time_s_mean']:.2f}x."]
+    for m, s in methods.items():
+        L += ["", f"### {m}: every case (true -> estimated; Eq. 2 % error, absolute where K = 0)", "",
+              "| group | K_GM | K_FSJ | K_BKL | est K_GM | est K_FSJ | est K_BKL | % err GM / FSJ / BKL | mean % | time [s] |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
+        for x in s["rows"]:
+            pe = " / ".join(_f(p, "{:+.3f}") if p is not None else f"abs {a:+.4f}" for p, a in zip(x["pct_err"], x["abs_err"]))
+            L.append(f"| {x['group']} | {x['true'][0]:g} | {x['true'][1]:g} | {x['true'][2]:g} | {x['est'][0]:.5f} | "
+                     f"{x['est'][1]:.5f} | {x['est'][2]:.5f} | {pe} | {_f(x['mean_pct_err'], '{:.3f}')} | {x['wall_time_s']:.2f} |")
+        if m in PAPER_COMBINED:
+            L += ["", f"Paper's combined-case estimates for {m} (Table {'4' if m == 'deterministic' else '5'}): " +
+                  "; ".join(f"{c} -> {e}" for c, e in zip(COMBINED, PAPER_COMBINED[m]))]
+    return "\n".join(L) + "\n"
+
+
+def format_text(res: dict) -> str:
+    L = [f"bench paper: fitness {res['fitness']}, noise {'on' if res['noise'] else 'off'}, seed {res['seed']}",
+         f"{'method':14s} {'FSJ %':>8s} {'GM %':>8s} {'BKL %':>8s} {'mean %':>8s} {'max|err|':>9s} {'t mean':>7s} {'t max':>7s} {'sims':>6s}"]
+    for m, s in res["methods"].items():
+        t = s["table6_paper_cases"]
+        L.append(f"{m:14s} {_f(t['fsj_pct'], '{:8.3f}')} {_f(t['gm_pct'], '{:8.3f}')} {_f(t['bkl_pct'], '{:8.3f}')} "
+                 f"{_f(t['mean_pct'], '{:8.3f}')} {t['max_abs_err']:9.4f} {s['wall_time_s_mean']:7.2f} "
+                 f"{s['wall_time_s_max']:7.2f} {s['evaluations_mean']:6.0f}")
+        if m in PAPER_TABLE6:
+            p = PAPER_TABLE6[m]
+            L.append(f"{'  paper':14s} {'<' + str(p[0]):>8s} {'<' + str(p[1]):>8s} {'<' + str(p[2]):>8s} {'<' + str(p[3]):>8s}")
+        if s["table6_random"]:
+            r = s["table6_random"]
+            L.append(f"{'  random':14s} {_f(r['fsj_pct'], '{:8.3f}')} {_f(r['gm_pct'], '{:8.3f}')} {_f(r['bkl_pct'], '{:8.3f}')} "
+                     f"{_f(r['mean_pct'], '{:8.3f}')} {r['max_abs_err']:9.4f}  within 2 sd: {_f(s['coverage_2sd'], '{:.0%}')}")
+    return "\n".join(L)
