@@ -1,0 +1,130 @@
+"""Identification with the real optimizers on real reference simulations."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eha_health import Faults, simulate
+from eha_health.identify import diagnose
+from eha_health.response import CSV_COLUMNS
+
+BIN = Path(sys.executable).parent / "eha-health"
+CLI = [str(BIN)] if BIN.exists() else [sys.executable, "-m", "eha_health.cli"]
+
+
+@pytest.fixture(scope="module")
+def combined():
+    return simulate("reference", Faults(0.4, 0.6, 0.6))
+
+
+def test_hybrid_default_recovers_combined_faults(combined):
+    d = diagnose(combined)
+    assert d.method == "hybrid" and d.fitness == "lsq"
+    err = np.abs(np.array(d.faults.as_tuple()) - (0.4, 0.6, 0.6))
+    assert err.max() <= 0.01, err
+    assert all(v > 0 for v in d.std.values())
+    assert d.correlation.shape == (3, 3) and np.allclose(np.diag(d.correlation), 1)
+    assert d.fitted is not None and len(d.fitted.t) == len(combined.t)
+    assert d.history and d.evaluations > 0
+
+
+@pytest.mark.parametrize("case", [(1.0, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, 0.0)])
+def test_deterministic_recovers_limit_and_healthy_cases(case):
+    d = diagnose(simulate("reference", Faults(*case)), method="deterministic")
+    assert np.abs(np.array(d.faults.as_tuple()) - case).max() <= 0.01
+
+
+def test_ga_same_seed_same_estimate_and_accurate():
+    r = simulate("reference", Faults(0.6, 0.4, 0.4))
+    a = diagnose(r, method="ga", seed=5)
+    b = diagnose(r, method="ga", seed=5)
+    assert a.faults.as_tuple() == b.faults.as_tuple()
+    assert np.abs(np.array(a.faults.as_tuple()) - (0.6, 0.4, 0.4)).max() <= 0.01
+
+
+def test_paper_fitness_ga_finds_the_neighbourhood():
+    r = simulate("reference", Faults(0.4, 0.4, 0.6))
+    d = diagnose(r, method="ga", fitness="paper", seed=1)
+    assert d.fitness == "paper"
+    assert np.abs(np.array(d.faults.as_tuple()) - (0.4, 0.4, 0.6)).max() <= 0.05
+
+
+def test_noisy_case_error_bars_cover_truth():
+    p = __import__("eha_health").load("reference").with_effects(sensor_noise={"enabled": True})
+    r = simulate("reference", Faults(0.5, 0.3, 0.7), params=p, seed=11)
+    d = diagnose(r)
+    err = np.abs(np.array(d.faults.as_tuple()) - (0.5, 0.3, 0.7))
+    assert err.max() <= 0.03
+    sd = np.array([d.std[k] for k in ("k_gm", "k_fsj", "k_bkl")])
+    assert np.all(sd > 0) and np.all(sd < 0.05)
+
+
+def test_bad_method_and_seed():
+    r = simulate("reference")
+    with pytest.raises(ValueError, match="method"):
+        diagnose(r, method="magic")
+    with pytest.raises(ValueError, match="seed"):
+        diagnose(r, seed=-1)
+
+
+def _cli(*args, cwd=None):
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, cwd=cwd)
+
+
+def test_cli_diagnose_json(tmp_path, combined):
+    f = tmp_path / "run.csv"
+    combined.to_csv(f)
+    p = _cli("diagnose", str(f), "--json", "--seed", "2", "--plot", str(tmp_path / "d.png"))
+    assert p.returncode == 0, p.stderr
+    d = json.loads(p.stdout)
+    for k in ("k_gm", "k_fsj", "k_bkl", "std", "method", "fitness", "evaluations", "wall_time_s", "warnings"):
+        assert k in d
+    assert set(d["std"]) == {"k_gm", "k_fsj", "k_bkl"}
+    assert abs(d["k_fsj"] - 0.6) <= 0.01
+    assert (tmp_path / "d.png").stat().st_size > 10_000
+
+
+def _write(path, t, cols=CSV_COLUMNS, mutate=None):
+    r = simulate("reference")
+    data = np.column_stack([t if c == "t" else getattr(r, c)[: len(t)] for c in cols])
+    if mutate:
+        mutate(data)
+    np.savetxt(path, data, delimiter=",", header=",".join(cols), comments="")
+
+
+@pytest.mark.parametrize("kind, match", [
+    ("missing", "missing column"),
+    ("nan", "NaN"),
+    ("order", "not strictly increasing"),
+    ("short", "FDI sequence lasts"),
+    ("gap", "uniformly spaced"),
+])
+def test_cli_diagnose_bad_input_exits_2(tmp_path, kind, match):
+    f = tmp_path / f"{kind}.csv"
+    t = np.arange(3500) / 1000.0
+    if kind == "missing":
+        _write(f, t, cols=[c for c in CSV_COLUMNS if c != "pressure"])
+    elif kind == "nan":
+        _write(f, t, mutate=lambda d: d.__setitem__((100, 2), np.nan))
+    elif kind == "order":
+        _write(f, t, mutate=lambda d: d.__setitem__((50, 0), 0.02))
+    elif kind == "short":
+        _write(f, t[:2000])
+    elif kind == "gap":
+        t2 = t.copy()
+        t2[2000:] += 0.01
+        _write(f, t2)
+    p = _cli("diagnose", str(f), "--json")
+    assert p.returncode == 2, p.stdout + p.stderr
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and match in lines[0], p.stderr
+
+
+def test_cli_diagnose_bad_options(tmp_path, combined):
+    f = tmp_path / "run.csv"
+    combined.to_csv(f)
+    p = _cli("diagnose", str(f), "--seed", "-3")
+    assert p.returncode == 2 and "seed" in p.stderr
