@@ -20,6 +20,11 @@ class UsageError(Exception):
     """Bad user input: reported in one line, exit code 2."""
 
 
+def _progress_line(msg: str) -> None:
+    """Progress of long work, on stderr so --json output stays clean."""
+    print("  " + msg, file=sys.stderr, flush=True)
+
+
 def _params(args, kind: str):
     p = load(kind, path=getattr(args, "params", None))
     effects = [e.strip() for e in (getattr(args, "effects", None) or "").split(",") if e.strip()]
@@ -81,7 +86,7 @@ def cmd_signatures(args) -> int:
     from .plotting import plot_signature_families, trend_table
     from .signatures import Detector
     out = Path(args.out)
-    files = plot_signature_families(out, progress=None if args.quiet else lambda m: print("  " + m, file=sys.stderr))
+    files = plot_signature_families(out, progress=None if args.quiet else _progress_line)
     rows = trend_table()
     with (out / "signatures.csv").open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0]))
@@ -112,7 +117,7 @@ def cmd_bench(args) -> int:
         raise UsageError(f"unknown method {args.method!r}; choose from {', '.join(METHODS)} or all")
     if args.random < 0:
         raise UsageError("--random must be >= 0")
-    progress = None if (args.json or args.quiet) else (lambda m: print("  " + m, file=sys.stderr, flush=True))
+    progress = None if (args.json or args.quiet) else _progress_line
     res = run_bench(methods, fitness=args.fitness, noise=args.noise, n_random=args.random, seed=args.seed,
                     de=not args.no_de, progress=progress)
     if args.markdown:
@@ -122,12 +127,8 @@ def cmd_bench(args) -> int:
     return 0
 
 
-def _progress_line(msg: str) -> None:
-    print("  " + msg, file=sys.stderr, flush=True)
-
-
 def cmd_diagnose(args) -> int:
-    from .identify import diagnose
+    from .identify import NAMES, diagnose
     from .response import Response
     path = Path(args.run)
     if path.suffix.lower() == ".mcap":
@@ -143,9 +144,8 @@ def cmd_diagnose(args) -> int:
         return 0
     k = d.faults
     print(f"diagnosis of {path} ({d.method}, fitness {d.fitness}, seed {d.seed}):")
-    for name, val in zip(("K_GM ", "K_FSJ", "K_BKL"), k.as_tuple()):
-        key = "k_" + name.strip().lower()[2:]
-        print(f"  {name} = {val:.4f} +/- {d.std[key]:.4f}  (0 healthy, 1 limit)")
+    for key, val in zip(NAMES, k.as_tuple()):
+        print(f"  {key.upper():5s} = {val:.4f} +/- {d.std[key]:.4f}  (0 healthy, 1 limit)")
     print(f"  fit RMS: position {d.rms['position'] * 1e6:.1f} um, pressure {d.rms['pressure'] / 1e3:.1f} kPa, "
           f"current {d.rms['current'] * 1e6:.1f} uA;  fitness {d.cost:.4g}")
     print(f"  {d.evaluations} monitor simulations in {d.wall_time_s:.2f} s")

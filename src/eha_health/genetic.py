@@ -24,7 +24,6 @@ from pymoo.core.sampling import Sampling
 from pymoo.core.selection import Selection
 from pymoo.core.termination import TerminateIfAny
 from pymoo.optimize import minimize
-from pymoo.termination.default import DefaultSingleObjectiveTermination  # noqa: F401 (documented alternative)
 from pymoo.termination.max_gen import MaximumGenerationTermination
 from pymoo.termination.robust import RobustTermination
 from pymoo.termination.ftol import SingleObjectiveSpaceTermination

@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 from scipy.optimize import least_squares, minimize, minimize_scalar
 
-from .fitness import LsqFitness, Measured, PaperFitness, make_fitness
+from .fitness import CHANNEL_SCALES, LsqFitness, Measured, PaperFitness, make_fitness
 from .genetic import GAOptions, run_ga
 from .layout import O_P12, O_POS, O_VEL
 from .model import response_from_rows, simulate_batch
@@ -90,6 +90,18 @@ class Evaluator:
 
 
 # --------------------------------------------------------------------------- local refinement
+def _perturbed(x: np.ndarray, h: float, upper: float):
+    """The point and its three forward perturbations (backward at the upper bound), and the steps."""
+    steps = np.where(x + h <= upper, h, -h)
+    return np.vstack([x, x + np.diag(steps)]), steps
+
+
+def _jacobian(fit: LsqFitness, outs: np.ndarray, steps: np.ndarray):
+    """Residual at the point and its finite-difference Jacobian from one batch of outputs."""
+    r0 = fit.residuals(outs[0])
+    return r0, np.column_stack([(fit.residuals(outs[i + 1]) - r0) / steps[i] for i in range(3)])
+
+
 def refine_lsq(ev: Evaluator, fit: LsqFitness, x0: np.ndarray, upper: float = UPPER, history=None):
     """Bounded least squares (trust-region reflective) with a batched finite-difference Jacobian."""
     h = 2e-3
@@ -98,23 +110,19 @@ def refine_lsq(ev: Evaluator, fit: LsqFitness, x0: np.ndarray, upper: float = UP
     def outs_at(x):
         key = tuple(np.round(x, 12))
         if key not in cache:
-            # the point and its three forward perturbations in one parallel batch
-            X = np.vstack([x, x + np.diag(np.where(x + h <= upper, h, -h))])
+            X, steps = _perturbed(x, h, upper)   # one parallel batch
             cache.clear()
-            cache[key] = ev.run(X)
+            cache[key] = (ev.run(X), steps)
         return cache[key]
 
     def fun(x):
-        r = fit.residuals(outs_at(x)[0])
+        r = fit.residuals(outs_at(x)[0][0])
         if history is not None:
             history.append(float(r @ r))
         return r
 
     def jac(x):
-        o = outs_at(x)
-        r0 = fit.residuals(o[0])
-        steps = np.where(x + h <= upper, h, -h)
-        return np.column_stack([(fit.residuals(o[i + 1]) - r0) / steps[i] for i in range(3)])
+        return _jacobian(fit, *outs_at(x))[1]
 
     x0 = np.clip(np.asarray(x0, float), 0.0, upper)
     sol = least_squares(fun, x0, jac=jac, bounds=(np.zeros(3), np.full(3, upper)), method="trf",
@@ -147,7 +155,7 @@ def _stage_objectives(fit, meas: Measured):
         return fit.fsj, fit.gm, fit.bkl
     r = meas.response
     ramp, step = meas.mask("ramp"), meas.mask("step")
-    sc = {"p": 5e5, "x": 1e-4, "v": 5e-3}
+    sc = {"p": CHANNEL_SCALES["pressure"], "x": CHANNEL_SCALES["position"], "v": CHANNEL_SCALES["velocity"]}
 
     def fsj(o):
         return float(np.mean(((o[ramp, O_P12] - r.pressure[ramp]) / sc["p"]) ** 2))
@@ -217,11 +225,8 @@ def _autocorr_inflation(res: np.ndarray, n_channels: int) -> float:
 
 def uncertainty(ev: Evaluator, fit: LsqFitness, x: np.ndarray, upper: float = UPPER):
     """Standard errors and correlation of the estimate at ``x`` (lsq residual)."""
-    h = 5e-3
-    steps = np.where(x + h <= upper, h, -h)
-    o = ev.run(np.vstack([x, x + np.diag(steps)]))
-    r0 = fit.residuals(o[0])
-    J = np.column_stack([(fit.residuals(o[i + 1]) - r0) / steps[i] for i in range(3)])
+    X, steps = _perturbed(x, 5e-3, upper)
+    r0, J = _jacobian(fit, ev.run(X), steps)
     m = len(r0)
     s2 = float(r0 @ r0) / max(m - 3, 1)
     JtJ = J.T @ J
@@ -286,7 +291,7 @@ def diagnose(response: Response, method: str = "hybrid", fitness: str = "lsq", s
     pop = pop_cost = None
 
     if start is None:
-        from .signatures import Detector, signatures
+        from .signatures import signatures
         try:
             start = _coarse_detector(ev.params).coarse_estimate(signatures(response, seq))
         except ValueError:
