@@ -31,8 +31,8 @@ setup(
         'pymoo>=0.6',
         'pyyaml>=6.0',
         'matplotlib>=3.8',
-        'mcap>=1.1',
-        'mcap-ros2-support>=0.5',
+        'mcap>=1.6',
+        'mcap-ros2-support>=0.6',
     ],
     extras_require={
         # ROS 2 Jazzy from PyPI wheels (a venv is required: the wheels'
@@ -48,6 +48,10 @@ setup(
     entry_points={
         'console_scripts': [
             'eha-health = eha_health.cli:main',
+            'eha-plant = eha_health.nodes.plant:main',
+            'eha-command = eha_health.nodes.command:main',
+            'eha-monitor = eha_health.nodes.monitor:main',
+            'eha-replay = eha_health.nodes.replay:main',
         ],
     },
     zip_safe=True,

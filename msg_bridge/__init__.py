@@ -1,1 +1,6 @@
-"""Conversions between ROS 2 messages and the numpy arrays used by eha_health (filled in by the node-graph work)."""
+"""Bridge between the eha_health libraries and ROS 2 messages.
+
+* :mod:`msg_bridge.contract` -- topic names, types and QoS of the graph (plain data).
+* :mod:`msg_bridge.convert` -- message <-> number conversions (SI, stamps in ns).
+"""
+from . import contract, convert  # noqa: F401

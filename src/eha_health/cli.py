@@ -10,10 +10,7 @@ import json
 import sys
 from pathlib import Path
 
-from .params import Faults, load
-
-EFFECT_NAMES = ("compressibility", "sensor_noise", "quantization", "sensor_delay", "sensor_calibration",
-                "stribeck", "command_noise")
+from .params import EFFECT_NAMES, Faults, load
 
 
 class UsageError(Exception):
@@ -33,8 +30,7 @@ def _params(args, kind: str):
     for e in effects:
         if e not in EFFECT_NAMES:
             raise UsageError(f"unknown effect {e!r}; known: {', '.join(EFFECT_NAMES)}")
-        p = p.with_effects(**{e: {"enabled": True}})
-    return p
+    return p.with_effect_names(effects)
 
 
 def cmd_simulate(args) -> int:
@@ -127,25 +123,41 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def _load_run(path: Path, test_id: int | None):
+    """(response, truth or None, notes) from a CSV or an MCAP bag."""
+    from .response import Response
+    if path.suffix.lower() == ".mcap":
+        from .bagrun import read_run
+        run = read_run(path, test_id)
+        truth = {k: float(run.truth[k]) for k in ("k_gm", "k_fsj", "k_bkl")} if run.truth else None
+        return run.response, truth, run.notes
+    if test_id is not None:
+        raise UsageError("--test applies to MCAP bags only")
+    return Response.from_csv(path), None, []
+
+
 def cmd_diagnose(args) -> int:
     from .identify import NAMES, diagnose
-    from .response import Response
     path = Path(args.run)
-    if path.suffix.lower() == ".mcap":
-        raise UsageError(f"{path}: MCAP input arrives with the node-graph issue; give a CSV from `eha-health simulate`")
-    r = Response.from_csv(path)
+    r, truth, notes = _load_run(path, args.test)
+    for n in notes:
+        print(f"note: {n}", file=sys.stderr)
     progress = None if (args.json or args.quiet) else _progress_line
     d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=progress)
     if args.plot:
         from .plotting import plot_diagnosis
         plot_diagnosis(r, d, args.plot)
     if args.json:
-        print(json.dumps(d.as_dict(), default=float))
+        out = d.as_dict()
+        if truth is not None:
+            out["truth"] = truth
+        print(json.dumps(out, default=float))
         return 0
     k = d.faults
     print(f"diagnosis of {path} ({d.method}, fitness {d.fitness}, seed {d.seed}):")
     for key, val in zip(NAMES, k.as_tuple()):
-        print(f"  {key.upper():5s} = {val:.4f} +/- {d.std[key]:.4f}  (0 healthy, 1 limit)")
+        tr = f"   truth {truth[key]:.4f}" if truth else ""
+        print(f"  {key.upper():5s} = {val:.4f} +/- {d.std[key]:.4f}  (0 healthy, 1 limit){tr}")
     print(f"  fit RMS: position {d.rms['position'] * 1e6:.1f} um, pressure {d.rms['pressure'] / 1e3:.1f} kPa, "
           f"current {d.rms['current'] * 1e6:.1f} uA;  fitness {d.cost:.4g}")
     print(f"  {d.evaluations} monitor simulations in {d.wall_time_s:.2f} s")
@@ -156,36 +168,57 @@ def cmd_diagnose(args) -> int:
     return 0
 
 
+def _truth_table(truth, d) -> list[str]:
+    from .identify import NAMES
+    rows = [f"  {'':6s} {'truth':>7s} {'estimate':>9s} {'std':>7s} {'error':>8s}"]
+    for n in NAMES:
+        est = getattr(d.faults, n)
+        rows.append(f"  {n.upper():6s} {truth[n]:7.3f} {est:9.4f} {d.std[n]:7.4f} {est - truth[n]:+8.4f}")
+    return rows
+
+
 def cmd_demo(args) -> int:
-    from .model import simulate
-    from .plotting import plot_response
-    from .signatures import Detector, signatures
+    from .nodes.graph import Graph
+    from .plotting import plot_diagnosis
     faults = Faults.parse(args.faults)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"Simulating the FDI test sequence on the reference EHA with faults "
-          f"K_GM={faults.k_gm:g}, K_FSJ={faults.k_fsj:g}, K_BKL={faults.k_bkl:g} ...")
-    healthy = simulate("reference", Faults())
-    faulty = simulate("reference", faults)
-    sh, sf = signatures(healthy), signatures(faulty)
-    units = {"overshoot": (1e3, "mm"), "pressure_peak": (1e-6, "MPa"), "pressure_plateau": (1e-6, "MPa"),
-             "motion_start": (1e3, "ms"), "velocity_peak": (1e3, "mm/s"), "current_peak": (1e3, "mA"),
-             "current_peak_time": (1e3, "ms")}
-    print(f"{'signature':20s} {'healthy':>10s} {'faulty':>10s}")
-    for k, (sc, u) in units.items():
-        print(f"{k:20s} {getattr(sh, k) * sc:10.3f} {getattr(sf, k) * sc:10.3f}  {u}")
-    det = Detector.build()
-    found = det.detect(sf)
-    scores = det.scores(sf)
-    print("coarse detector (thresholds from 20 % damage simulations):")
-    for f in ("gm", "fsj", "bkl"):
-        print(f"  {f.upper():4s} {'PRESENT' if found[f] else 'absent ':8s} score {scores[f]:5.2f} "
-              f"(1.0 = signature of 20 % damage)")
-    csv_path, png_path = out / "demo_faulty.csv", out / "demo.png"
-    faulty.to_csv(csv_path)
-    faulty.meta["label"] = "faulty"
-    plot_response(faulty, png_path, title=f"Reference EHA, faults {args.faults}", others={"healthy": healthy})
-    print(f"wrote {csv_path} and {png_path}")
+    log, png = out / "demo.mcap", out / "demo.png"
+    log.unlink(missing_ok=True)
+    print(f"Running the graph in one process: plant (reference EHA, K_GM={faults.k_gm:g}, K_FSJ={faults.k_fsj:g}, "
+          f"K_BKL={faults.k_bkl:g}), command (FDI test, 1 kHz, as fast as possible), monitor (hybrid) ...",
+          flush=True)
+    with Graph(faults=faults, log_path=log, rate=0.0) as g:
+        r = g.run_test()
+    if r["diagnosis"] is None:
+        raise UsageError(r["message"])
+    d = r["diagnosis"]
+    truth = {k: float(v) for k, v in (r["truth"] or dict(zip(("k_gm", "k_fsj", "k_bkl"), faults.as_tuple()))).items()
+             if k.startswith("k_")}
+    print(f"/diagnostics: {r['level']}: {r['message']}")
+    print("\n".join(_truth_table(truth, d)))
+    print(f"  fit RMS position {d.rms['position'] * 1e6:.1f} um; {d.evaluations} monitor runs in {d.wall_time_s:.2f} s")
+    plot_diagnosis(r["response"], d, png)
+    print(f"wrote {log} (MCAP, ros2 profile) and {png}")
+    print(f"next: eha-health diagnose {log}   |   eha-health replay {log}")
+    return 0
+
+
+def cmd_launch(args) -> int:
+    from .nodes.graph import launch
+    faults = Faults.parse(args.faults)
+    res = launch(faults, effects=[e for e in args.effects.split(",") if e], seed=args.seed, tests=args.tests,
+                 rate=args.rate, method=args.method, log_path=args.log, domain_id=args.domain_id,
+                 timeout_s=args.timeout)
+    print(json.dumps(res, indent=2, default=float) if args.json else res["summary"])
+    return 0 if res["ok"] else 1
+
+
+def cmd_replay(args) -> int:
+    from .nodes.graph import replay
+    res = replay(args.bag, rate=args.rate, with_monitor=not args.no_monitor, log_path=args.log,
+                 domain_id=args.domain_id)
+    print(json.dumps(res, indent=2, default=float) if args.json else res["summary"])
     return 0
 
 
@@ -228,8 +261,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--quiet", action="store_true")
     b.set_defaults(func=cmd_bench)
 
-    q = sub.add_parser("diagnose", help="identify the fault coefficients of a recorded test (CSV)")
-    q.add_argument("run", help="CSV in the simulate format")
+    q = sub.add_parser("diagnose", help="identify the fault coefficients of a recorded test (CSV or MCAP)")
+    q.add_argument("run", help="CSV in the simulate format, or an MCAP bag to the docs/interfaces.md contract")
+    q.add_argument("--test", type=int, help="MCAP: test window id (default: the first complete one)")
     q.add_argument("--method", choices=("hybrid", "deterministic", "ga"), default="hybrid")
     q.add_argument("--fitness", choices=("lsq", "paper"), default="lsq")
     q.add_argument("--seed", type=int, default=0)
@@ -238,10 +272,32 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--quiet", action="store_true")
     q.set_defaults(func=cmd_diagnose)
 
-    d = sub.add_parser("demo", help="simulate a faulty actuator, print signatures, write a plot")
+    d = sub.add_parser("demo", help="the whole node graph in one process: simulate, record, diagnose, plot")
     d.add_argument("--faults", default="gm=0.4,fsj=0.6,bkl=0.4")
     d.add_argument("--out", default="out/demo")
     d.set_defaults(func=cmd_demo)
+
+    la = sub.add_parser("launch", help="run plant, command and monitor as three processes over DDS")
+    la.add_argument("--faults", default="gm=0.4,fsj=0.6,bkl=0.4")
+    la.add_argument("--effects", default="", help=f"plant effects: {', '.join(EFFECT_NAMES)}")
+    la.add_argument("--seed", type=int, default=0, help="plant noise seed")
+    la.add_argument("--tests", type=int, default=1, help="number of FDI tests to play")
+    la.add_argument("--rate", type=float, default=1.0, help="playback speed (1 real time, 0 as fast as possible)")
+    la.add_argument("--method", choices=("hybrid", "deterministic", "ga"), default="hybrid")
+    la.add_argument("--log", default="out/launch.mcap", help="MCAP log of the monitor")
+    la.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID for the three processes")
+    la.add_argument("--timeout", type=float, default=300.0, help="give up after this long [s]")
+    la.add_argument("--json", action="store_true")
+    la.set_defaults(func=cmd_launch)
+
+    rp = sub.add_parser("replay", help="republish a bag's input topics into a live graph (with a monitor)")
+    rp.add_argument("bag")
+    rp.add_argument("--rate", type=float, default=1.0, help="speed vs the recording (0 as fast as possible)")
+    rp.add_argument("--no-monitor", action="store_true", help="only publish (a monitor runs elsewhere)")
+    rp.add_argument("--log", default="", help="MCAP log of the replay's monitor")
+    rp.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID to publish on")
+    rp.add_argument("--json", action="store_true")
+    rp.set_defaults(func=cmd_replay)
     return ap
 
 

@@ -254,6 +254,10 @@ class Effects:
     command_noise: CommandNoise
 
 
+#: Names of the optional effects, as accepted by ``with_effect_names`` and the CLI.
+EFFECT_NAMES = tuple(f.name for f in fields(Effects))
+
+
 # ----------------------------------------------------------------------------- model
 @dataclass(frozen=True)
 class ModelParams:
@@ -285,6 +289,16 @@ class ModelParams:
             cur = getattr(eff, name)
             eff = replace(eff, **{name: replace(cur, **upd) if isinstance(upd, dict) else upd})
         return replace(self, effects=eff)
+
+    def with_effect_names(self, names) -> "ModelParams":
+        """Copy with the named effects switched on (their parameters as loaded)."""
+        for n in names:
+            if n not in EFFECT_NAMES:
+                raise ValueError(f"unknown effect {n!r}; known: {', '.join(EFFECT_NAMES)}")
+        return self.with_effects(**{n: {"enabled": True} for n in names})
+
+    def enabled_effects(self) -> tuple[str, ...]:
+        return tuple(n for n in EFFECT_NAMES if getattr(self.effects, n).enabled)
 
     def updated(self, block: str, **values: Any) -> "ModelParams":
         """Copy with fields of one block changed, e.g. ``updated('jack', mass=6.0)``."""

@@ -1,0 +1,126 @@
+"""Test runs from an MCAP bag recorded to the topic contract (docs/interfaces.md).
+
+:func:`read_run` reads the measured channels and the test-window marks, picks one
+window and returns its :class:`~eha_health.response.Response` (checked by
+:func:`eha_health.window.assemble`) together with the truth the bag declares in its
+metadata, if any (simulated runs only). No ROS install is needed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from msg_bridge import contract as C
+from msg_bridge import convert as cv
+
+from .mcaplog import Bag, BagError, read_bag
+from .response import Response
+from .sequence import FDISequence
+from .window import Samples, WindowError, assemble
+
+SIGNALS = (C.COMMAND, C.JOINT_STATE, C.PRESSURE, C.CURRENT)
+
+
+@dataclass
+class Run:
+    response: Response
+    test_id: int | None              # None: the bag has no window marks (whole record used)
+    windows: list[int]               # complete windows in the bag
+    truth: dict[str, str] | None     # metadata 'truth/test_<id>' (simulated runs)
+    recorded: dict[str, str] | None  # metadata 'diagnosis/test_<id>' (what the live monitor said)
+    notes: list[str] = field(default_factory=list)
+
+
+def resolve_topics(types: dict[str, str], path, namespace: str | None = None) -> dict[str, str]:
+    """Contract name ('eha/command') -> the bag's topic ('/eha/command', '/left/eha/command', ...).
+
+    A bag may hold one actuator under any namespace; with several, ``namespace`` picks one.
+    """
+    out = {}
+    for topic in SIGNALS + (C.TEST_WINDOW,):
+        if namespace is not None:
+            want = "/" + "/".join(p for p in (namespace.strip("/"), topic.name) if p)
+            found = [t for t in types if t == want]
+        else:
+            found = [t for t in types if t in (topic.name, "/" + topic.name) or t.endswith("/" + topic.name)]
+        if len(found) > 1:
+            raise BagError(f"{path}: several actuators publish {topic.name} ({', '.join(sorted(found))}); "
+                           f"choose one with --namespace")
+        if found:
+            if types[found[0]] != topic.type:
+                raise BagError(f"{path}: topic {found[0]} has type {types[found[0]]}, the contract says {topic.type}")
+            out[topic.name] = found[0]
+    return out
+
+
+def _channels(bag: Bag, names: dict[str, str]) -> dict[str, Samples]:
+    pairs: dict[str, list] = {"command": [], "position": [], "velocity": [], "pressure": [], "current": []}
+    for topic in SIGNALS:
+        for i, msg in enumerate(bag.messages[names[topic.name]]):
+            try:
+                vals = cv.READERS[topic.name](msg)
+            except (ValueError, AttributeError, TypeError) as e:
+                raise WindowError(f"{names[topic.name]} message {i}: {e}") from None
+            for ch, v in zip(C.CHANNELS[topic.name], vals[1:]):
+                pairs[ch].append((vals[0], v))
+    return {c: Samples.of(p) for c, p in pairs.items()}
+
+
+def complete_windows(bag: Bag, topic: str | None = None) -> dict[int, dict]:
+    """Test id -> {'start': ns, 'end': ns} of the windows with both marks."""
+    marks: dict[int, dict] = {}
+    if topic is None:
+        topic = resolve_topics(bag.types, bag.path).get(C.TEST_WINDOW.name)
+    for i, msg in enumerate(bag.messages.get(topic, []) if topic else []):
+        try:
+            ns, event, tid = cv.window_from_msg(msg)
+        except (ValueError, AttributeError) as e:
+            raise WindowError(f"{topic} message {i}: {e}") from None
+        marks.setdefault(tid, {})[event] = ns
+    return {tid: m for tid, m in sorted(marks.items()) if "start" in m and "end" in m}
+
+
+def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence | None = None,
+             namespace: str | None = None) -> Run:
+    """The response of one test window of the bag at ``path``.
+
+    ``test_id`` picks a window by its id; default the first complete one. A bag
+    without window marks is taken whole (first to last command sample). Raises
+    ``BagError`` / ``WindowError`` (both ``ValueError``) naming the problem.
+    """
+    names = resolve_topics(read_bag(path, topics=[]).types, path, namespace)
+    missing = [t.name for t in SIGNALS if t.name not in names]
+    if missing:
+        raise BagError(f"{path}: missing topic {missing[0]} (the contract of docs/interfaces.md needs "
+                       f"{', '.join(t.name for t in SIGNALS)})")
+    bag = read_bag(path, topics=list(names.values()))
+    bag.require(*(names[t.name] for t in SIGNALS))
+    notes = [f"{path}: {bag.truncated}; using the complete part"] if bag.truncated else []
+    chans = _channels(bag, names)
+    wins = complete_windows(bag, names.get(C.TEST_WINDOW.name))
+    if test_id is not None and test_id not in wins:
+        raise WindowError(f"{path}: no complete test window {test_id} (complete: {sorted(wins) or 'none'})")
+    if wins:
+        tid = test_id if test_id is not None else next(iter(wins))
+        start, end = wins[tid]["start"], wins[tid]["end"]
+        if len(wins) > 1 and test_id is None:
+            notes.append(f"{path}: {len(wins)} test windows {sorted(wins)}; diagnosing {tid} (choose with --test)")
+    else:
+        tid = None
+        cmd = chans["command"].stamps
+        if len(cmd) == 0:
+            raise WindowError(f"{path}: no command samples")
+        start, end = int(cmd.min()), int(cmd.max())
+        notes.append(f"{path}: no test-window marks; using the whole record")
+    try:
+        r = assemble(chans, start, end, sequence, meta={"source": str(path), "test_id": tid})
+    except WindowError as e:
+        why = f"{path}: test {tid}: {e}" if tid is not None else f"{path}: {e}"
+        if bag.truncated:
+            why += f" ({bag.truncated})"
+        raise WindowError(why) from None
+    return Run(r, tid, sorted(wins), bag.metadata.get(f"truth/test_{tid}"),
+               bag.metadata.get(f"diagnosis/test_{tid}"), notes)
+
+
+__all__ = ["Run", "read_run", "BagError", "WindowError"]

@@ -1,0 +1,55 @@
+"""ROS 2 nodes: thin rclpy shells over the eha_health libraries.
+
+* :mod:`.plant` -- the reference EHA driven by the command stream.
+* :mod:`.command` -- plays the FDI test sequence (Trigger service, optional period).
+* :mod:`.monitor` -- records the test window, diagnoses it, publishes health and logs MCAP.
+* :mod:`.replay` -- republishes a recorded bag into a live graph.
+* :mod:`.graph` -- runs the nodes in one process (demo, tests, bench) or as processes (launch).
+
+Topic names, types and QoS come from :mod:`msg_bridge.contract`; see docs/interfaces.md.
+"""
+from __future__ import annotations
+
+from msg_bridge.contract import Topic
+
+
+def qos(topic: Topic):
+    """RELIABLE, KEEP_LAST(depth), TRANSIENT_LOCAL when latched."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=topic.depth, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL if topic.latched else DurabilityPolicy.VOLATILE)
+
+
+def msg_class(topic: Topic):
+    """The rclpy message class of a contract topic."""
+    import importlib
+    pkg, _, name = topic.type.split("/")
+    return getattr(importlib.import_module(f"{pkg}.msg"), name)
+
+
+def run_node(factory, args=None) -> int:
+    """``main`` of a console script: spin one node until Ctrl-C or until it asks to stop."""
+    import rclpy
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    rclpy.init(args=args)
+    node = factory()
+    ex = SingleThreadedExecutor()
+    ex.add_node(node)
+    rc = 0
+    try:
+        while rclpy.ok() and not getattr(node, "done", False):
+            ex.spin_once(timeout_sec=0.1)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception as e:  # a node's own bug: say it in one line and exit non-zero
+        node.get_logger().error(f"{type(e).__name__}: {e}")
+        rc = 1
+    finally:
+        close = getattr(node, "close", None)
+        if close:
+            close()
+        ex.shutdown()
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return rc

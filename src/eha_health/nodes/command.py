@@ -1,0 +1,166 @@
+"""Command node: plays the FDI test sequence on request and optionally every N seconds.
+
+A test is started by the ``eha/start_test`` service (``std_srvs/Trigger``), by
+``period_s`` > 0 (every N s of simulated time, measured from one test's start to
+the next) or at start-up with ``autostart``. Each test publishes
+``eha/test_window`` 'start:<id>', one ``eha/command`` sample per 1/``sample_rate_hz``
+(stamped in simulated time), then 'end:<id>'.
+
+Pacing (``rate``): 1.0 plays in real time, R plays R times faster, 0 as fast as the
+graph allows. At 0 the node keeps at most ``max_in_flight`` samples ahead of the
+plant's answers (``eha/joint_state``), so no queue overflows and no sample is lost.
+"""
+from __future__ import annotations
+
+import time
+
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+
+from msg_bridge import contract as C
+from msg_bridge import convert as cv
+
+from ..sequence import FDISequence
+from . import msg_class, qos, run_node
+
+NS = 1_000_000_000
+
+
+class CommandNode(Node):
+    def __init__(self, name: str = "eha_command", sequence: FDISequence | None = None, **kw):
+        super().__init__(name, **kw)
+        d = ParameterDescriptor
+        self.declare_parameter("rate", 1.0, d(description="playback speed: 1 real time, 0 as fast as possible"))
+        self.declare_parameter("sample_rate_hz", 1000.0, d(description="command sample rate [Hz]"))
+        self.declare_parameter("period_s", 0.0, d(description="start a test every N s of simulated time (0: off)"))
+        self.declare_parameter("autostart", False, d(description="start one test as soon as the graph is up"))
+        self.declare_parameter("max_tests", 0, d(description="stop after this many tests (0: no limit)"))
+        self.declare_parameter("wait_for_graph_s", 10.0, d(
+            description="autostart/period: wait up to this long for plant and monitor subscribers [s]"))
+        self.declare_parameter("settle_s", 0.5, d(description="rest between two tests [s of simulated time]"))
+        self.declare_parameter("max_in_flight", 200, d(description="rate 0: samples ahead of the plant"))
+        self.declare_parameter("actuator_id", "eha", d(description="joint name in the command messages"))
+        self.sequence = sequence or FDISequence()
+        self.pub_cmd = self.create_publisher(msg_class(C.COMMAND), C.COMMAND.name, qos(C.COMMAND))
+        self.pub_win = self.create_publisher(msg_class(C.TEST_WINDOW), C.TEST_WINDOW.name, qos(C.TEST_WINDOW))
+        self.create_subscription(msg_class(C.JOINT_STATE), C.JOINT_STATE.name, self._on_echo, qos(C.JOINT_STATE))
+        self.create_service(Trigger, "eha/start_test", self._on_trigger)
+        self.tests_started = 0
+        self.tests_done = 0
+        self.next_start_ns = 0          # simulated time of the next test's first sample
+        self._test: dict | None = None  # the test being played
+        self._echo_ns = -1
+        self._stall_since = None
+        self._pending = bool(self.get_parameter("autostart").value)
+        self._created = time.monotonic()
+        self._next_wall = 0.0
+        self._seen_since = None
+        self.timer = self.create_timer(0.002, self._tick)
+
+    @property
+    def done(self) -> bool:
+        """True once ``max_tests`` tests have been played (lets a process exit)."""
+        m = self.get_parameter("max_tests").value
+        return m > 0 and self.tests_done >= m and self._test is None
+
+    # ---------------------------------------------------------------- requests
+    def _on_trigger(self, request, response):
+        ok, why = self.start_test()
+        response.success, response.message = ok, why
+        return response
+
+    def start_test(self) -> tuple[bool, str]:
+        if self._test is not None:
+            return False, f"test {self._test['id']} is still playing"
+        m = self.get_parameter("max_tests").value
+        if m > 0 and self.tests_started >= m:
+            return False, f"max_tests={m} already played"
+        fs = float(self.get_parameter("sample_rate_hz").value)
+        if not fs > 0:
+            return False, f"sample_rate_hz must be > 0, got {fs}"
+        t = self.sequence.times(fs)
+        dt_ns = round(NS / fs)
+        t0 = self.next_start_ns
+        self.tests_started += 1
+        self._test = {"id": self.tests_started, "u": self.sequence.command(t), "k": 0, "t0": t0, "dt": dt_ns,
+                      "wall0": time.monotonic()}
+        self.pub_win.publish(cv.window_msg(t0, "start", self.tests_started))
+        self.get_logger().info(f"test {self.tests_started}: {len(t)} samples at {fs:g} Hz from t={t0 / NS:.3f} s")
+        return True, f"test {self.tests_started} started"
+
+    def _graph_ready(self) -> bool:
+        """Plant and monitor are discovered (or waited long enough)."""
+        now = time.monotonic()
+        if now - self._created > self.get_parameter("wait_for_graph_s").value:
+            return True
+        seen = (self.count_subscribers(C.COMMAND.name) >= 1 and self.count_subscribers(C.TEST_WINDOW.name) >= 1
+                and self.count_subscribers(C.PRESSURE.name) >= 1)
+        if not seen:
+            self._seen_since = None
+            return False
+        # endpoints discovered; give their matching (and the plant's services) a moment
+        self._seen_since = self._seen_since or now
+        return now - self._seen_since >= 0.5
+
+    # ---------------------------------------------------------------- playing
+    def _on_echo(self, msg) -> None:
+        self._echo_ns = max(self._echo_ns, cv.stamp_ns(msg.header.stamp))
+
+    def _tick(self) -> None:
+        if self._test is None:
+            self._maybe_start()
+            return
+        T = self._test
+        n = len(T["u"])
+        rate = float(self.get_parameter("rate").value)
+        if rate > 0:
+            due = min(n, int((time.monotonic() - T["wall0"]) * rate * NS / T["dt"]) + 1)
+        else:
+            acked = (self._echo_ns - T["t0"]) // T["dt"] + 1 if self._echo_ns >= T["t0"] else 0
+            due = min(n, acked + int(self.get_parameter("max_in_flight").value))
+            if due == T["k"]:   # nothing acknowledged: is anyone answering?
+                self._stall_since = self._stall_since or time.monotonic()
+                if time.monotonic() - self._stall_since > 1.0:
+                    self.get_logger().warning("no plant answers for 1 s: playing on without flow control",
+                                              throttle_duration_sec=5.0)
+                    due = min(n, T["k"] + int(self.get_parameter("max_in_flight").value))
+            else:
+                self._stall_since = None
+        joint = self.get_parameter("actuator_id").value
+        for k in range(T["k"], due):
+            self.pub_cmd.publish(cv.command_msg(T["t0"] + k * T["dt"], T["u"][k], joint))
+        T["k"] = due
+        if due == n:
+            t_end = T["t0"] + (n - 1) * T["dt"]
+            self.pub_win.publish(cv.window_msg(t_end, "end", T["id"]))
+            self.tests_done += 1
+            settle = round(float(self.get_parameter("settle_s").value) * NS)
+            period = round(float(self.get_parameter("period_s").value) * NS)
+            self.next_start_ns = max(t_end + T["dt"] + settle, T["t0"] + period)
+            # the simulated clock runs at `rate`: the next periodic test waits for it
+            rate = float(self.get_parameter("rate").value)
+            wait = (self.next_start_ns - t_end) / NS / rate if rate > 0 else 0.0
+            self._next_wall = time.monotonic() + wait
+            self._test = None
+
+    def _maybe_start(self) -> None:
+        period = self.get_parameter("period_s").value
+        if not (self._pending or period > 0) or self.done:
+            return
+        if not self._graph_ready():
+            return
+        if not self._pending and time.monotonic() < self._next_wall:
+            return
+        self._pending = False
+        ok, why = self.start_test()
+        if not ok:
+            self.get_logger().warning(why)
+
+def main(args=None) -> int:
+    return run_node(CommandNode, args)
+
+
+if __name__ == "__main__":
+    import sys
+    sys.exit(main())

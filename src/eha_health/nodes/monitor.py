@@ -1,0 +1,280 @@
+"""Monitor node: record each test window, diagnose it, publish health, log everything.
+
+Subscribes to the input topics of :mod:`msg_bridge.contract` (command, joint state,
+pressure, current, test-window marks). When a window's 'end' mark has arrived and
+every channel has reached that stamp (or ``window_timeout_s`` has passed), the
+window is assembled and checked (:mod:`eha_health.window`): gaps, NaN, order,
+duplicates, dropped samples, length. A good window is diagnosed in a worker thread
+(:func:`eha_health.identify.diagnose`) so the executor keeps serving messages; a bad
+one is reported at once as ERROR with the reason. Either way the node keeps running.
+
+Outputs (each also written to the log as published): ``/diagnostics`` (one status per actuator, re-published every
+``diagnostics_period_s``; levels from ``warn_level`` / ``error_level`` on the
+largest coefficient), ``eha/health`` (latched 2x3 array), and an MCAP log of every
+input topic (raw wire bytes, ros2 profile) and every output, flushed after every window so
+a crash loses at most the samples of the window in progress.
+"""
+from __future__ import annotations
+
+import json
+import time
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.node import Node
+from rclpy.serialization import deserialize_message
+
+from msg_bridge import contract as C
+from msg_bridge import convert as cv
+
+from ..identify import METHODS, NAMES, diagnose
+from ..window import Samples, WindowError, assemble
+from . import msg_class, qos, run_node
+
+NS = 1_000_000_000
+#: Samples kept per channel (60 s at 1 kHz): older ones can no longer be in a window.
+BUFFER = 60_000
+
+
+class MonitorNode(Node):
+    def __init__(self, name: str = "eha_monitor", **kw):
+        super().__init__(name, **kw)
+        d = ParameterDescriptor
+        self.declare_parameter("actuator_id", "eha", d(description="hardware_id of the diagnostic status"))
+        self.declare_parameter("method", "hybrid", d(description="identification method: " + ", ".join(METHODS)))
+        self.declare_parameter("fitness", "lsq", d(description="fitness function: lsq or paper"))
+        self.declare_parameter("seed", 0, d(description="seed of the identification (GA)"))
+        self.declare_parameter("warn_level", 0.3, d(description="WARN when a coefficient reaches this"))
+        self.declare_parameter("error_level", 0.7, d(description="ERROR when a coefficient reaches this"))
+        self.declare_parameter("log_path", "auto", d(
+            description="MCAP log file; 'auto' = eha_monitor_<date>.mcap in log_dir; '' = no log"))
+        self.declare_parameter("log_dir", ".", d(description="directory of the 'auto' log"))
+        self.declare_parameter("plant_node", "", d(
+            description="simulated runs: node whose k_* parameters are the truth (into MCAP metadata)"))
+        self.declare_parameter("window_timeout_s", 2.0, d(
+            description="after the end mark, wait this long [s] for late samples"))
+        self.declare_parameter("diagnostics_period_s", 1.0, d(description="re-publish the status this often [s]"))
+        self.declare_parameter("exit_after", 0, d(description="stop after this many windows (0: run on)"))
+
+        self.log = self._open_log()
+        self._buf = {c: deque(maxlen=BUFFER) for c in ("command", "position", "velocity", "pressure", "current")}
+        self._last = {c: -1 for c in self._buf}
+        self._windows: dict[int, dict] = {}
+        self._queue: deque = deque()          # windows waiting for their samples
+        self._futures: deque = deque()        # diagnoses running in the worker
+        self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eha-diagnose")
+        self.results: list[dict] = []
+        self.bad_messages = 0
+        self._status = ("STALE", "no test window diagnosed yet", {})
+
+        self.pub_diag = self.create_publisher(msg_class(C.DIAGNOSTICS), C.DIAGNOSTICS.name, qos(C.DIAGNOSTICS))
+        self.pub_health = self.create_publisher(msg_class(C.HEALTH), C.HEALTH.name, qos(C.HEALTH))
+        handlers = {C.COMMAND.name: self._on_command, C.JOINT_STATE.name: self._on_joint_state,
+                    C.PRESSURE.name: self._on_pressure, C.CURRENT.name: self._on_current,
+                    C.TEST_WINDOW.name: self._on_window}
+        for topic in C.INPUTS:
+            self.create_subscription(msg_class(topic), topic.name, self._recorder(topic, handlers.get(topic.name)),
+                                     qos(topic), raw=True)
+        self._truth_client = None
+        if self.get_parameter("plant_node").value:
+            from rcl_interfaces.srv import GetParameters
+            self._truth_client = self.create_client(
+                GetParameters, f"{self.get_parameter('plant_node').value.rstrip('/')}/get_parameters")
+        self.create_timer(0.05, self._poll)
+        self.create_timer(float(self.get_parameter("diagnostics_period_s").value), self._publish_status)
+
+    # ---------------------------------------------------------------- log
+    def _open_log(self):
+        path = self.get_parameter("log_path").value
+        if not path:
+            return None
+        if path == "auto":
+            path = Path(self.get_parameter("log_dir").value) / time.strftime("eha_monitor_%Y%m%d-%H%M%S.mcap")
+        from ..mcaplog import BagWriter
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        self.log_path = Path(path)
+        w = BagWriter(path)
+        w.add_metadata("eha_health", {"actuator_id": self.get_parameter("actuator_id").value,
+                                      "method": self.get_parameter("method").value,
+                                      "fitness": self.get_parameter("fitness").value,
+                                      "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")})
+        self.get_logger().info(f"logging to {path}")
+        return w
+
+    def _recorder(self, topic, handler):
+        cls = msg_class(topic)
+        logged_as = self.resolve_topic_name(topic.name)   # fully qualified, as ros2 bag records
+
+        def cb(data: bytes) -> None:
+            if self.log is not None:
+                self.log.write_raw(logged_as, topic.type, data, time.time_ns())
+            if handler is None:
+                return
+            try:
+                handler(deserialize_message(data, cls))
+            except (ValueError, AttributeError, TypeError) as e:   # one bad message never stops the node
+                self.bad_messages += 1
+                self.get_logger().warning(f"{topic.name}: message ignored ({e})", throttle_duration_sec=1.0)
+        return cb
+
+    # ---------------------------------------------------------------- inputs
+    def _put(self, name: str, ns: int, v: float) -> None:
+        self._buf[name].append((ns, v))
+        self._last[name] = max(self._last[name], ns)
+
+    def _on_command(self, msg):
+        ns, u = cv.command_from_msg(msg)
+        self._put("command", ns, u)
+
+    def _on_joint_state(self, msg):
+        ns, x, v = cv.joint_state_from_msg(msg)
+        self._put("position", ns, x)
+        self._put("velocity", ns, v)
+
+    def _on_pressure(self, msg):
+        self._put("pressure", *cv.pressure_from_msg(msg))
+
+    def _on_current(self, msg):
+        self._put("current", *cv.current_from_msg(msg))
+
+    def _on_window(self, msg):
+        ns, event, tid = cv.window_from_msg(msg)
+        w = self._windows.setdefault(tid, {"id": tid})
+        w[event] = ns
+        if event == "start":
+            self._fetch_truth(tid)
+        if "start" in w and "end" in w and not w.get("queued"):
+            w["queued"], w["deadline"] = True, time.monotonic() + float(self.get_parameter("window_timeout_s").value)
+            self._queue.append(w)
+
+    def _fetch_truth(self, tid: int) -> None:
+        if self._truth_client is None or not self._truth_client.service_is_ready():
+            return
+        from rcl_interfaces.srv import GetParameters
+        names = ["k_gm", "k_fsj", "k_bkl", "effects", "seed"]
+        fut = self._truth_client.call_async(GetParameters.Request(names=names))
+
+        def done(f):
+            try:
+                vals = f.result().values
+            except Exception:   # the plant went away: no truth, no harm
+                return
+            from rclpy.parameter import parameter_value_to_python
+            truth = {n: parameter_value_to_python(v) for n, v in zip(names, vals)}
+            truth["effects"] = ",".join(e for e in (truth["effects"] or []) if e)
+            self._windows.setdefault(tid, {"id": tid})["truth"] = truth
+            if self.log is not None:
+                self.log.add_metadata(f"truth/test_{tid}", {k: str(v) for k, v in truth.items()})
+        fut.add_done_callback(done)
+
+    # ---------------------------------------------------------------- windows
+    def _poll(self) -> None:
+        while self._queue:
+            w = self._queue[0]
+            ready = all(self._last[c] >= w["end"] for c in self._buf)
+            if not ready and time.monotonic() < w["deadline"]:
+                break
+            self._queue.popleft()
+            self._start_diagnosis(w)
+        while self._futures and self._futures[0][1].done():
+            w, fut = self._futures.popleft()
+            try:
+                self._report(w, fut.result(), None)
+            except Exception as e:   # identification refused the data (ValueError) or failed
+                self._report(w, None, f"{type(e).__name__}: {e}" if not isinstance(e, ValueError) else str(e))
+
+    def _start_diagnosis(self, w: dict) -> None:
+        if self.log is not None:
+            self.log.flush()
+        chans = {c: Samples.of(list(b)) for c, b in self._buf.items()}
+        try:
+            r = assemble(chans, w["start"], w["end"], meta={"test_id": w["id"]})
+        except WindowError as e:
+            return self._report(w, None, str(e))
+        w["response"] = r
+        args = dict(method=self.get_parameter("method").value, fitness=self.get_parameter("fitness").value,
+                    seed=int(self.get_parameter("seed").value))
+        self.get_logger().info(f"test {w['id']}: {len(r)} samples, diagnosing ({args['method']}) ...")
+        self._futures.append((w, self._worker.submit(diagnose, r, **args)))
+
+    def _level(self, k) -> tuple[str, str]:
+        warn, err = (float(self.get_parameter(p).value) for p in ("warn_level", "error_level"))
+        worst = max(zip(k, NAMES))
+        if worst[0] >= err:
+            return "ERROR", f"{worst[1].upper()} = {worst[0]:.3f} >= {err:g}: near the fault limit"
+        if worst[0] >= warn:
+            return "WARN", f"{worst[1].upper()} = {worst[0]:.3f} >= {warn:g}: degraded"
+        return "OK", "healthy"
+
+    def _report(self, w: dict, d, error: str | None) -> None:
+        tid = w["id"]
+        entry = {"test_id": tid, "truth": w.get("truth"), "response": w.get("response"), "diagnosis": d}
+        if d is None:
+            level, msg = "ERROR", f"test {tid} not diagnosed: {error}"
+            values = {"test_id": tid, "error": error}
+            self.get_logger().error(msg)
+        else:
+            k = d.faults.as_tuple()
+            level, msg = self._level(k)
+            values = {"test_id": tid}
+            for n, v in zip(NAMES, k):
+                values[n] = v
+                values[n + "_std"] = d.std[n]
+            values.update({"fitness": d.cost, "rms_position_m": d.rms["position"],
+                           "rms_pressure_pa": d.rms["pressure"], "method": d.method, "fitness_function": d.fitness,
+                           "evaluations": d.evaluations, "wall_time_s": d.wall_time_s,
+                           "window_start_s": w["start"] / NS, "warnings": "; ".join(d.warnings) or "none"})
+            self._publish(self.pub_health, C.HEALTH, cv.health_msg(k, [d.std[n] for n in NAMES]))
+            self.get_logger().info(f"test {tid}: " + ", ".join(f"{n.upper()}={v:.3f}" for n, v in zip(NAMES, k))
+                                   + f" ({d.wall_time_s:.2f} s) -> {level}")
+            if self.log is not None:
+                rec = d.as_dict()
+                self.log.add_metadata(f"diagnosis/test_{tid}", {
+                    k_: json.dumps(v, default=float) for k_, v in rec.items()})
+        entry.update(level=level, message=msg)
+        self.results.append(entry)
+        self._status = (level, msg, values)
+        self._publish_status()
+        if self.log is not None:
+            self.log.flush()
+        self._windows.pop(tid, None)
+
+    def _publish_status(self) -> None:
+        level, msg, values = self._status
+        aid = self.get_parameter("actuator_id").value
+        self._publish(self.pub_diag, C.DIAGNOSTICS, cv.diagnostic_array(
+            self.get_clock().now().nanoseconds, f"{self.get_name()}: {aid}", aid, level, msg, values))
+
+    def _publish(self, pub, topic, msg) -> None:
+        """Publish, and log what was published (every estimate is in the log)."""
+        pub.publish(msg)
+        if self.log is not None:
+            self.log.write(self.resolve_topic_name(topic.name), topic.type, msg, time.time_ns())
+
+    # ---------------------------------------------------------------- life cycle
+    @property
+    def busy(self) -> bool:
+        return bool(self._queue or self._futures)
+
+    @property
+    def done(self) -> bool:
+        n = int(self.get_parameter("exit_after").value)
+        return n > 0 and len(self.results) >= n
+
+    def close(self) -> None:
+        """Stop the worker and close the log (writes its summary)."""
+        self._worker.shutdown(wait=True, cancel_futures=True)
+        if self.log is not None:
+            self.log.close()
+            self.log = None
+
+
+def main(args=None) -> int:
+    return run_node(MonitorNode, args)
+
+
+if __name__ == "__main__":
+    import sys
+    sys.exit(main())

@@ -1,0 +1,95 @@
+"""Replay node: republish a recorded bag's input topics into a live graph.
+
+The messages go out byte for byte as recorded (raw CDR), in log-time order, paced
+at ``rate`` times the recorded speed (0: as fast as ``max_msgs_per_s`` allows, a cap
+that keeps a monitor in another process lossless). A monitor anywhere in the graph
+then diagnoses the recorded tests as if they were live.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from rclpy.node import Node
+
+from msg_bridge import contract as C
+
+from . import msg_class, qos, run_node
+
+NS = 1_000_000_000
+
+
+def recorded_inputs(path: str | Path) -> list[tuple[int, str, bytes]]:
+    """(log time [ns], topic, raw CDR bytes) of every input topic, in log-time order."""
+    from ..bagrun import resolve_topics
+    from ..mcaplog import BagError, read_bag
+    names = resolve_topics(read_bag(path, topics=[]).types, path)
+    if C.COMMAND.name not in names:
+        raise BagError(f"{path}: missing topic {C.COMMAND.name}: nothing to replay")
+    bag = read_bag(path, topics=list(names.values()), raw=True)
+    # published under the contract's relative names, so a namespace remap applies
+    rows = [(int(t), name, data) for name, topic in names.items()
+            for t, data in zip(bag.log_times[topic], bag.messages[topic])]
+    rows.sort(key=lambda r: r[0])
+    return rows
+
+
+class ReplayNode(Node):
+    def __init__(self, path: str | Path | None = None, name: str = "eha_replay", **kw):
+        super().__init__(name, **kw)
+        self.declare_parameter("bag", str(path or ""))
+        self.declare_parameter("rate", 1.0)
+        self.declare_parameter("max_msgs_per_s", 5000.0)
+        self.declare_parameter("wait_for_subscribers_s", 10.0)
+        bag = self.get_parameter("bag").value
+        if not bag:
+            raise ValueError("replay: parameter 'bag' (the MCAP file) is required")
+        self.rows = recorded_inputs(bag)
+        self.pubs = {t.name: self.create_publisher(msg_class(t), t.name, qos(t)) for t in C.INPUTS}
+        self.sent = 0
+        self._t0_wall = None
+        self._created = time.monotonic()
+        self.timer = self.create_timer(0.002, self._tick)
+
+    @property
+    def done(self) -> bool:
+        return self.sent >= len(self.rows)
+
+    def _ready(self) -> bool:
+        waited = time.monotonic() - self._created
+        return waited > self.get_parameter("wait_for_subscribers_s").value or \
+            self.pubs[C.COMMAND.name].get_subscription_count() >= 1 and \
+            self.pubs[C.TEST_WINDOW.name].get_subscription_count() >= 1
+
+    def _tick(self) -> None:
+        if self.done:
+            return
+        now = time.monotonic()
+        if self._t0_wall is None:
+            if not self._ready():
+                return
+            self._t0_wall = now
+            self._cap_t, self._cap_sent = now, 0
+        rate = float(self.get_parameter("rate").value)
+        cap = int((now - self._cap_t) * float(self.get_parameter("max_msgs_per_s").value)) + 1 - self._cap_sent
+        n = len(self.rows)
+        if rate > 0:
+            horizon = self.rows[0][0] + (now - self._t0_wall) * rate * NS
+            end = self.sent
+            while end < n and self.rows[end][0] <= horizon:
+                end += 1
+        else:
+            end = min(n, self.sent + max(cap, 0))
+        for _, topic, data in self.rows[self.sent:end]:
+            self.pubs[topic].publish(data)
+        self._cap_sent += end - self.sent
+        self.sent = end
+
+
+def main(args=None) -> int:
+    return run_node(ReplayNode, args)
+
+
+if __name__ == "__main__":
+    import sys
+    sys.exit(main())
