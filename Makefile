@@ -1,7 +1,8 @@
 # eha_health developer entry points.  Needs only python3 (>= 3.10) on PATH.
 #   make demo   - set up .venv (with the ros and test extras) and run the demo
 #   make test   - set up .venv and run the test suite
-#   make bench  - set up .venv and run the speed benchmark
+#   make bench  - set up .venv and run the speed and graph benchmarks
+#   make bags   - regenerate the committed recordings in bags/
 #   make venv   - (alias: setup) only set up .venv
 #   make clean  - remove .venv and build/test leftovers
 
@@ -14,7 +15,7 @@ PYTEST_ARGS ?=
 export ROS_LOG_DIR ?= $(CURDIR)/.ros/log
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: demo test bench venv setup clean
+.PHONY: demo test bench bags venv setup clean
 
 demo: $(STAMP)
 	$(VENV)/bin/eha-health demo
@@ -24,6 +25,10 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(VENV)/bin/eha-health bench speed
+	$(VENV)/bin/eha-health bench graph
+
+bags: $(STAMP)
+	EHA=$(VENV)/bin/eha-health bash bags/make_bags.sh
 
 venv setup: $(STAMP)
 

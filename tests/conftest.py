@@ -3,3 +3,8 @@ import tempfile
 
 # rcl writes logs to ~/.ros by default; keep test runs self-contained
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="eha-ros-log-"))
+
+# DDS isolation: a domain of our own (not 0) so a test run never talks to another
+# graph on the machine, and discovery stays on this host
+os.environ.setdefault("ROS_DOMAIN_ID", str(101 + os.getpid() % 100))
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")

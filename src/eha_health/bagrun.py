@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from msg_bridge import contract as C
 from msg_bridge import convert as cv
 
@@ -19,6 +21,7 @@ from .sequence import FDISequence
 from .window import Samples, WindowError, assemble
 
 SIGNALS = (C.COMMAND, C.JOINT_STATE, C.PRESSURE, C.CURRENT)
+NS = 1_000_000_000
 
 
 @dataclass
@@ -123,4 +126,25 @@ def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence
                bag.metadata.get(f"diagnosis/test_{tid}"), notes)
 
 
-__all__ = ["Run", "read_run", "BagError", "WindowError"]
+
+
+def write_run(writer, response: Response, test_id: int = 1, start_ns: int = 0, truth: dict | None = None,
+              actuator_id: str = "eha") -> None:
+    """Append ``response`` as test window ``test_id`` to an open :class:`~eha_health.mcaplog.BagWriter`,
+    to the topic contract (stamps ``start_ns + t``; log time = stamp). Needs the rclpy message
+    classes (msg_bridge builders). ``truth`` (fault coefficients of a simulated run) goes into
+    the metadata record ``truth/test_<id>``, never into a topic."""
+    stamps = start_ns + np.round(np.asarray(response.t) * NS).astype(np.int64)
+
+    def put(topic, msg, ns):
+        writer.write("/" + topic.name, topic.type, msg, int(ns))
+    put(C.TEST_WINDOW, cv.window_msg(int(stamps[0]), "start", test_id), stamps[0])
+    for i, ns in enumerate(stamps):
+        ns = int(ns)
+        put(C.COMMAND, cv.command_msg(ns, response.command[i], actuator_id), ns)
+        put(C.JOINT_STATE, cv.joint_state_msg(ns, response.position[i], response.velocity[i], actuator_id), ns)
+        put(C.PRESSURE, cv.pressure_msg(ns, response.pressure[i], actuator_id), ns)
+        put(C.CURRENT, cv.current_msg(ns, response.current[i], actuator_id), ns)
+    put(C.TEST_WINDOW, cv.window_msg(int(stamps[-1]), "end", test_id), stamps[-1])
+    if truth is not None:
+        writer.add_metadata(f"truth/test_{test_id}", {k: str(v) for k, v in truth.items()})

@@ -104,8 +104,13 @@ def cmd_bench(args) -> int:
         res = speed(with_compile=not args.no_compile)
         print(json.dumps(res, indent=2) if args.json else format_speed(res))
         return 0
+    if args.what == "graph":
+        from .bench import format_graph, graph
+        res = graph(rate=args.rate, progress=None if (args.json or args.quiet) else _progress_line)
+        print(json.dumps(res, indent=2) if args.json else format_graph(res))
+        return 0
     if args.what != "paper":
-        raise UsageError(f"unknown benchmark {args.what!r}; available: speed, paper")
+        raise UsageError(f"unknown benchmark {args.what!r}; available: speed, paper, graph")
     from .identify import METHODS
     from .paperbench import format_markdown, format_text, run_bench
     methods = METHODS if args.method == "all" else (args.method,)
@@ -204,6 +209,26 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_record(args) -> int:
+    from .nodes.graph import Graph
+    faults = Faults.parse(args.faults)
+    effects = [e.strip() for e in args.effects.split(",") if e.strip()] + (["sensor_noise"] if args.noise else [])
+    for e in effects:
+        if e not in EFFECT_NAMES:
+            raise UsageError(f"unknown effect {e!r}; known: {', '.join(EFFECT_NAMES)}")
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.unlink(missing_ok=True)
+    with Graph(faults=faults, effects=tuple(effects), seed=args.seed, log_path=out, truth=not args.no_truth) as g:
+        for _ in range(args.tests):
+            r = g.run_test()
+            if not args.quiet:
+                print(f"test {r['test_id']}: {r['level']}: {r['message']}", file=sys.stderr)
+    print(f"wrote {out} ({args.tests} test(s), faults {args.faults or 'none'}, effects {','.join(effects) or 'none'}"
+          f"{', truth not recorded' if args.no_truth else ''})")
+    return 0
+
+
 def cmd_launch(args) -> int:
     from .nodes.graph import launch
     faults = Faults.parse(args.faults)
@@ -247,8 +272,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--quiet", action="store_true")
     g.set_defaults(func=cmd_signatures)
 
-    b = sub.add_parser("bench", help="benchmarks: speed | paper")
-    b.add_argument("what", help="speed or paper")
+    b = sub.add_parser("bench", help="benchmarks: speed | paper | graph")
+    b.add_argument("what", help="speed, paper or graph")
+    b.add_argument("--rate", type=float, default=0.0, help="graph: command playback speed (0 as fast as possible)")
     b.add_argument("--json", action="store_true")
     b.add_argument("--no-compile", action="store_true", help="speed: skip the fresh-process compile-time measurement")
     b.add_argument("--method", default="all", help="paper: deterministic, ga, hybrid or all")
@@ -276,6 +302,17 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--faults", default="gm=0.4,fsj=0.6,bkl=0.4")
     d.add_argument("--out", default="out/demo")
     d.set_defaults(func=cmd_demo)
+
+    rc = sub.add_parser("record", help="run the graph in one process and keep the monitor's MCAP log")
+    rc.add_argument("--faults", default="", help="e.g. gm=0.4,fsj=0.6,bkl=0.4")
+    rc.add_argument("--effects", default="", help=f"plant effects: {', '.join(EFFECT_NAMES)}")
+    rc.add_argument("--noise", action="store_true", help="the default sensor noise (effect sensor_noise)")
+    rc.add_argument("--seed", type=int, default=0, help="plant noise seed")
+    rc.add_argument("--tests", type=int, default=1)
+    rc.add_argument("--no-truth", action="store_true", help="do not write the plant's truth into the metadata")
+    rc.add_argument("--out", required=True, help="MCAP file")
+    rc.add_argument("--quiet", action="store_true")
+    rc.set_defaults(func=cmd_record)
 
     la = sub.add_parser("launch", help="run plant, command and monitor as three processes over DDS")
     la.add_argument("--faults", default="gm=0.4,fsj=0.6,bkl=0.4")

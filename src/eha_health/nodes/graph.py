@@ -34,11 +34,14 @@ class Graph:
     method, fitness, monitor_seed : identification settings of the monitor.
     log_path : MCAP log of the monitor ('' = none).
     executor : 'single' (``SingleThreadedExecutor``) or 'events' (``EventsExecutor``).
+    truth : write the plant's fault parameters into the log metadata (False: an
+        "undeclared" recording whose truth stays with whoever made it).
     """
 
     def __init__(self, faults: Faults = Faults(), effects: tuple[str, ...] = (), seed: int = 0, rate: float = 0.0,
                  method: str = "hybrid", fitness: str = "lsq", monitor_seed: int = 0, log_path: str | Path = "",
-                 executor: str = "single", actuator_id: str = "eha", namespace: str = "", extra_nodes=()):
+                 executor: str = "single", actuator_id: str = "eha", namespace: str = "", extra_nodes=(),
+                 truth: bool = True):
         import rclpy
         from rclpy.parameter import Parameter
         from rclpy.signals import SignalHandlerOptions
@@ -60,7 +63,7 @@ class Graph:
             plant_fqn = self.plant.get_fully_qualified_name()
             self.monitor = MonitorNode(context=self.ctx, parameter_overrides=[
                 P("method", value=method), P("fitness", value=fitness), P("seed", value=int(monitor_seed)),
-                P("log_path", value=str(log_path)), P("plant_node", value=plant_fqn),
+                P("log_path", value=str(log_path)), P("plant_node", value=plant_fqn if truth else ""),
                 P("actuator_id", value=actuator_id)], **ns)
             self.nodes = [self.plant, self.command, self.monitor, *extra_nodes]
             if executor == "events":

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections import deque
+from collections import Counter, deque
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -67,6 +67,7 @@ class MonitorNode(Node):
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eha-diagnose")
         self.results: list[dict] = []
         self.bad_messages = 0
+        self.received: Counter = Counter()   # messages per input topic
         self._status = ("STALE", "no test window diagnosed yet", {})
 
         self.pub_diag = self.create_publisher(msg_class(C.DIAGNOSTICS), C.DIAGNOSTICS.name, qos(C.DIAGNOSTICS))
@@ -108,6 +109,7 @@ class MonitorNode(Node):
         logged_as = self.resolve_topic_name(topic.name)   # fully qualified, as ros2 bag records
 
         def cb(data: bytes) -> None:
+            self.received[topic.name] += 1
             if self.log is not None:
                 self.log.write_raw(logged_as, topic.type, data, time.time_ns())
             if handler is None:

@@ -1,0 +1,11 @@
+#!/usr/bin/env bash
+# Regenerate the committed recordings (run from the repository root: `make bags`).
+# Each bag is the monitor's MCAP log of one FDI test through the in-process graph.
+set -euo pipefail
+R="${EHA:-.venv/bin/eha-health} record --quiet"
+$R --out bags/healthy.mcap
+$R --faults gm=0.6 --out bags/gm_0.6.mcap
+$R --faults fsj=0.6 --out bags/fsj_0.6.mcap
+$R --faults bkl=0.6 --out bags/bkl_0.6.mcap
+$R --faults gm=0.4,fsj=0.6,bkl=0.4 --out bags/combined.mcap
+$R --faults gm=0.4,fsj=0.6,bkl=0.4 --noise --seed 7 --out bags/combined_noisy.mcap

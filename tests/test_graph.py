@@ -1,0 +1,173 @@
+"""The node graph with real rclpy nodes on real executors, real MCAP files, real DDS.
+
+Every Graph runs in its own rclpy Context (isolated; torn down in the order the
+ros2-from-pypi notes give). The identification tolerance on clean data is 0.01.
+"""
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from eha_health.bagrun import read_run
+from eha_health.mcaplog import read_bag
+from eha_health.nodes.graph import Graph, launch, replay
+from eha_health.params import Faults
+
+NAMES = ("k_gm", "k_fsj", "k_bkl")
+TOL = 0.01
+
+
+def errors(result, truth: Faults):
+    d = result["diagnosis"]
+    assert d is not None, result["message"]
+    return np.abs(np.array(d.faults.as_tuple()) - np.array(truth.as_tuple()))
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    """One logged run of gm=0.4, fsj=0.6, bkl=0.4, shared by the log/replay tests."""
+    log = tmp_path_factory.mktemp("live") / "live.mcap"
+    faults = Faults(0.4, 0.6, 0.4)
+    with Graph(faults=faults, log_path=log) as g:
+        r = g.run_test()
+    return {"log": log, "result": r, "faults": faults}
+
+
+def test_graph_diagnoses_injected_faults_and_follows_a_parameter_change(tmp_path):
+    first, second = Faults(0.4, 0.6, 0.4), Faults(0.0, 0.2, 0.4)
+    with Graph(faults=first, log_path=tmp_path / "two.mcap") as g:
+        r1 = g.run_test()
+        # degrade/repair the actuator between two tests through the standard parameter service
+        g.set_plant(k_gm=0.0, k_fsj=0.2)
+        r2 = g.run_test()
+    assert errors(r1, first).max() <= TOL
+    assert errors(r2, second).max() <= TOL
+    assert r1["diagnosis"].faults.k_fsj - r2["diagnosis"].faults.k_fsj > 0.35
+    assert r1["truth"]["k_fsj"] == 0.6 and r2["truth"]["k_fsj"] == 0.2
+    assert r1["level"] == "WARN" and "K_FSJ" in r1["message"]
+
+
+def test_plant_refuses_bad_parameters_and_keeps_running(tmp_path):
+    with Graph(faults=Faults(0.0, 0.3, 0.0), log_path="") as g:
+        with pytest.raises(ValueError, match="k_gm"):
+            g.set_plant(k_gm=2.0)          # outside the declared 0..1.5 range
+        with pytest.raises(ValueError, match="unknown effect 'oil_foam'"):
+            g.set_plant(effects=["oil_foam"])
+        assert g.plant.plant.faults == Faults(0.0, 0.3, 0.0)
+        r = g.run_test()
+    assert errors(r, Faults(0.0, 0.3, 0.0)).max() <= TOL
+
+
+def test_log_decodes_with_rosbags_every_topic_type_and_count(live):
+    counts, types = {}, {}
+    with AnyReader([live["log"]], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        for conn, _, raw in reader.messages():
+            msg = reader.deserialize(raw, conn.msgtype)
+            counts[conn.topic] = counts.get(conn.topic, 0) + 1
+            types[conn.topic] = conn.msgtype
+            if conn.topic == "/eha/health":
+                health = np.asarray(msg.data)
+            if conn.topic == "/eha/pressure":
+                assert msg.fluid_pressure == msg.fluid_pressure   # decodes to a number
+    assert types == {"/eha/command": "sensor_msgs/msg/JointState", "/eha/joint_state": "sensor_msgs/msg/JointState",
+                     "/eha/pressure": "sensor_msgs/msg/FluidPressure", "/eha/current": "sensor_msgs/msg/JointState",
+                     "/eha/test_window": "std_msgs/msg/Header", "/eha/health": "std_msgs/msg/Float64MultiArray",
+                     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray"}
+    for t in ("/eha/command", "/eha/joint_state", "/eha/pressure", "/eha/current"):
+        assert counts[t] == 3500, t
+    assert counts["/eha/test_window"] == 2 and counts["/eha/health"] == 1 and counts["/diagnostics"] >= 1
+    d = live["result"]["diagnosis"]
+    np.testing.assert_allclose(health[:3], d.faults.as_tuple())
+    meta = read_bag(live["log"], topics=[]).metadata
+    assert meta["truth/test_1"]["k_fsj"] == "0.6"
+    assert set(meta["diagnosis/test_1"]) >= {"k_gm", "k_fsj", "k_bkl", "std", "method", "wall_time_s"}
+
+
+def test_offline_and_replayed_diagnosis_equal_the_live_one(live, tmp_path):
+    d_live = live["result"]["diagnosis"]
+    run = read_run(live["log"])
+    np.testing.assert_array_equal(run.response.position, live["result"]["response"].position)
+    out = replay(live["log"], rate=0.0, log_path=tmp_path / "replayed.mcap")
+    assert out["sent"] == 4 * 3500 + 2
+    (r,) = out["results"]
+    for n in NAMES:
+        assert r["diagnosis"][n] == getattr(d_live.faults, n)
+    assert r["truth"] == dict(zip(NAMES, live["faults"].as_tuple()))
+    # the replay's own log holds the same samples
+    assert read_bag(tmp_path / "replayed.mcap", topics=["/eha/pressure"]).messages["/eha/pressure"]
+
+
+def test_latched_health_reaches_a_late_subscriber():
+    import rclpy
+    from std_msgs.msg import Float64MultiArray
+
+    from eha_health.nodes import qos
+    from msg_bridge import contract as C
+    with Graph(faults=Faults(0.0, 0.0, 0.5)) as g:
+        d = g.run_test()["diagnosis"]
+        late = rclpy.create_node("late_subscriber", context=g.ctx)
+        got = []
+        late.create_subscription(Float64MultiArray, C.HEALTH.name, got.append, qos(C.HEALTH))
+        g.nodes.append(late)
+        g.ex.add_node(late)
+        g.spin_until(lambda: got, 10.0, "latched health")
+    np.testing.assert_allclose(got[0].data[:3], d.faults.as_tuple())
+    np.testing.assert_allclose(got[0].data[3:], [d.std[n] for n in NAMES])
+
+
+def _trigger(g):
+    from std_srvs.srv import Trigger
+    cli = g.monitor.create_client(Trigger, "eha/start_test")
+    g.spin_until(cli.service_is_ready, 10.0, "start_test service")
+    fut = cli.call_async(Trigger.Request())
+    g.spin_until(fut.done, 10.0, "trigger answer")
+    return fut.result()
+
+
+def test_trigger_service_and_samples_independent_of_playback_speed():
+    runs = {}
+    for rate in (0.0, 4.0):
+        with Graph(faults=Faults(0.2, 0.5, 0.3), effects=("sensor_noise",), seed=3, rate=rate) as g:
+            first = _trigger(g)
+            again = _trigger(g)       # refused: the first test still plays
+            g.spin_until(lambda: g.monitor.results, 60.0, "verdict")
+            runs[rate] = g.monitor.results[0]
+        assert first.success and "test 1 started" in first.message
+        assert not again.success and "still playing" in again.message
+    a, b = runs[0.0]["response"], runs[4.0]["response"]
+    for c in ("command", "position", "velocity", "pressure", "current"):
+        np.testing.assert_array_equal(getattr(a, c), getattr(b, c))
+    assert runs[0.0]["diagnosis"].faults == runs[4.0]["diagnosis"].faults
+
+
+def test_log_cut_off_mid_run_keeps_every_complete_window(tmp_path):
+    log = tmp_path / "open.mcap"
+    with Graph(faults=Faults(0.6, 0.0, 0.0), log_path=log) as g:
+        g.run_test()
+        snapshot = tmp_path / "crashed.mcap"
+        shutil.copyfile(log, snapshot)      # as if the process died now: no summary, no footer
+        size = snapshot.stat().st_size
+        with open(snapshot, "ab") as f:      # and a half-written chunk at the end
+            f.write(b"\x06" + os.urandom(40))
+    bag = read_bag(snapshot)
+    assert bag.truncated
+    assert len(bag.messages["/eha/command"]) == 3500
+    run = read_run(snapshot)
+    assert len(run.response) == 3500 and run.truth["k_gm"] == "0.6"
+    assert size < log.stat().st_size
+
+
+def test_three_processes_over_dds_with_an_isolated_domain(tmp_path):
+    domain = 1 + (int(os.environ["ROS_DOMAIN_ID"]) + 50) % 200   # not the in-process tests' domain
+    res = launch(Faults(0.4, 0.6, 0.4), rate=0.0, log_path=tmp_path / "launch.mcap", domain_id=domain,
+                 timeout_s=120)
+    assert res["ok"], res["summary"]
+    assert all(rc is not None for rc in res["returncodes"].values())   # nobody left behind
+    (r,) = res["results"]
+    est = np.array([r["diagnosis"][n] for n in NAMES])
+    assert np.abs(est - [0.4, 0.6, 0.4]).max() <= TOL
+    assert r["truth"] == {"k_gm": 0.4, "k_fsj": 0.6, "k_bkl": 0.4}
