@@ -38,6 +38,8 @@ class CommandNode(Node):
         self.declare_parameter("max_tests", 0, d(description="stop after this many tests (0: no limit)"))
         self.declare_parameter("wait_for_graph_s", 10.0, d(
             description="autostart/period: wait up to this long for plant and monitor subscribers [s]"))
+        self.declare_parameter("graph_grace_s", 2.0, d(
+            description="after plant and monitor are discovered, wait this long before autostart [s]"))
         self.declare_parameter("settle_s", 0.5, d(description="rest between two tests [s of simulated time]"))
         self.declare_parameter("max_in_flight", 200, d(description="rate 0: samples ahead of the plant"))
         self.declare_parameter("actuator_id", "eha", d(description="joint name in the command messages"))
@@ -94,14 +96,16 @@ class CommandNode(Node):
         now = time.monotonic()
         if now - self._created > self.get_parameter("wait_for_graph_s").value:
             return True
-        seen = (self.count_subscribers(C.COMMAND.name) >= 1 and self.count_subscribers(C.TEST_WINDOW.name) >= 1
-                and self.count_subscribers(C.PRESSURE.name) >= 1)
+        # a plant (publishes the answers) and a monitor (takes the marks and the answers; the
+        # command node itself is the other joint_state subscriber)
+        seen = (self.count_publishers(C.JOINT_STATE.name) >= 1 and self.count_subscribers(C.TEST_WINDOW.name) >= 1
+                and self.count_subscribers(C.JOINT_STATE.name) >= 2 and self.count_subscribers(C.PRESSURE.name) >= 1)
         if not seen:
             self._seen_since = None
             return False
-        # endpoints discovered; give their matching (and the plant's services) a moment
+        # discovered from here; the plant-monitor matching and services may lag: give them time
         self._seen_since = self._seen_since or now
-        return now - self._seen_since >= 0.5
+        return now - self._seen_since >= float(self.get_parameter("graph_grace_s").value)
 
     # ---------------------------------------------------------------- playing
     def _on_echo(self, msg) -> None:
@@ -121,8 +125,8 @@ class CommandNode(Node):
             due = min(n, acked + int(self.get_parameter("max_in_flight").value))
             if due == T["k"]:   # nothing acknowledged: is anyone answering?
                 self._stall_since = self._stall_since or time.monotonic()
-                if time.monotonic() - self._stall_since > 1.0:
-                    self.get_logger().warning("no plant answers for 1 s: playing on without flow control",
+                if time.monotonic() - self._stall_since > 5.0:
+                    self.get_logger().warning("no plant answers for 5 s: playing on without flow control",
                                               throttle_duration_sec=5.0)
                     due = min(n, T["k"] + int(self.get_parameter("max_in_flight").value))
             else:

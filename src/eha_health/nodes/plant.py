@@ -44,6 +44,9 @@ class PlantNode(Node):
         self.declare_parameter("max_gap_s", 2.0, ParameterDescriptor(
             description="longest idle time simulated between two command samples [s]"))
         self.plant = self._build({})
+        # compile the kernels now, before any endpoint exists, so the first answer is not late
+        self.plant.step(np.zeros(1))
+        self.plant.reset()
         self.add_on_set_parameters_callback(self._on_set)
         self.pub_js = self.create_publisher(msg_class(C.JOINT_STATE), C.JOINT_STATE.name, qos(C.JOINT_STATE))
         self.pub_p = self.create_publisher(msg_class(C.PRESSURE), C.PRESSURE.name, qos(C.PRESSURE))
