@@ -171,3 +171,17 @@ def test_three_processes_over_dds_with_an_isolated_domain(tmp_path):
     est = np.array([r["diagnosis"][n] for n in NAMES])
     assert np.abs(est - [0.4, 0.6, 0.4]).max() <= TOL
     assert r["truth"] == {"k_gm": 0.4, "k_fsj": 0.6, "k_bkl": 0.4}
+
+
+def test_periodic_tests_play_back_to_back_and_each_is_diagnosed():
+    from rclpy.parameter import Parameter
+    with Graph(faults=Faults(0.3, 0.0, 0.0)) as g:
+        g.command.set_parameters([Parameter("period_s", value=4.0), Parameter("max_tests", value=2)])
+        g.spin_until(lambda: len(g.monitor.results) >= 2, 120.0, "two periodic verdicts")
+        assert g.command.done
+    a, b = g.monitor.results
+    assert (a["test_id"], b["test_id"]) == (1, 2)
+    # the second test starts one period after the first, in simulated time
+    assert b["start_ns"] - a["start_ns"] == 4_000_000_000
+    assert b["diagnosis"] is not None and abs(b["diagnosis"].faults.k_gm - 0.3) <= TOL
+    assert abs(a["diagnosis"].faults.k_gm - 0.3) <= TOL

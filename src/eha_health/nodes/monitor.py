@@ -212,7 +212,8 @@ class MonitorNode(Node):
 
     def _report(self, w: dict, d, error: str | None) -> None:
         tid = w["id"]
-        entry = {"test_id": tid, "truth": w.get("truth"), "response": w.get("response"), "diagnosis": d}
+        entry = {"test_id": tid, "start_ns": w.get("start"), "truth": w.get("truth"), "response": w.get("response"),
+                 "diagnosis": d}
         if d is None:
             level, msg = "ERROR", f"test {tid} not diagnosed: {error}"
             values = {"test_id": tid, "error": error}
