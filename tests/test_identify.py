@@ -128,3 +128,24 @@ def test_cli_diagnose_bad_options(tmp_path, combined):
     combined.to_csv(f)
     p = _cli("diagnose", str(f), "--seed", "-3")
     assert p.returncode == 2 and "seed" in p.stderr
+
+
+def test_error_bars_add_the_measured_model_form_error(combined):
+    from eha_health.identify import NAMES, model_error
+    d = diagnose(combined)
+    me = model_error()
+    assert (me > 0).all()
+    for n, m in zip(NAMES, me):
+        assert d.std[n] ** 2 == pytest.approx(d.std_stat[n] ** 2 + m ** 2, rel=1e-9)
+    assert set(d.as_dict()["std_stat"]) == set(NAMES)
+
+
+def test_model_error_file_is_checked(tmp_path):
+    from eha_health.identify import model_error
+    good = tmp_path / "me.yaml"
+    good.write_text("model_error_sd:\n  k_gm: 0.001\n  k_fsj: 0.002\n  k_bkl: 0.003\n")
+    assert list(model_error(good)) == [0.001, 0.002, 0.003]
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("model_error_sd:\n  k_gm: 0.001\n")
+    with pytest.raises(ValueError, match="needs model_error_sd"):
+        model_error(bad)

@@ -121,9 +121,13 @@ def cmd_bench(args) -> int:
     progress = None if (args.json or args.quiet) else _progress_line
     res = run_bench(methods, fitness=args.fitness, noise=args.noise, n_random=args.random, seed=args.seed,
                     de=not args.no_de, progress=progress)
+    cmd = "eha-health " + " ".join(args.raw)
     if args.markdown:
-        cmd = "eha-health " + " ".join(args.raw)
         Path(args.markdown).write_text(format_markdown(res, cmd))
+    if args.write_model_error:
+        from .paperbench import model_error_yaml
+        method = "hybrid" if "hybrid" in methods else methods[0]
+        Path(args.write_model_error).write_text(model_error_yaml(res, method, cmd))
     print(json.dumps(res, indent=2, default=float) if args.json else format_text(res))
     return 0
 
@@ -284,6 +288,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--seed", type=int, default=0, help="paper: seed of random cases, noise and GA")
     b.add_argument("--no-de", action="store_true", help="paper: skip the scipy differential_evolution peer")
     b.add_argument("--markdown", help="paper: write the tables to this Markdown file")
+    b.add_argument("--write-model-error", metavar="YAML",
+                   help="paper (clean runs): write the measured model-form error, e.g. src/eha_health/data/model_error.yaml")
     b.add_argument("--quiet", action="store_true")
     b.set_defaults(func=cmd_bench)
 

@@ -14,14 +14,18 @@ Methods (``diagnose(..., method=...)``):
 
 Uncertainty: from the Jacobian of the residual at the optimum (Gauss-Newton
 covariance ``s^2 (J'J)^-1``), inflated by the residual autocorrelation (effective
-sample size), so that model mismatch and coloured noise widen the error bars.
+sample size), plus, in quadrature, the monitor model's measured model-form error
+(``data/model_error.yaml``: the RMS error on clean reference runs, which no fit
+residual can reveal). ``std`` is the total, ``std_stat`` the noise part.
 Correlations between coefficients above 0.95, or a distinct fault combination in
 the final GA population that fits almost as well, raise a "twin cases" warning.
 """
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -44,7 +48,8 @@ UPPER = 1.5        # default upper bound of every coefficient (beyond-limit dama
 class Diagnosis:
     """Result of one identification (scipy.optimize-style result object)."""
     faults: Faults                      # estimated coefficients
-    std: dict[str, float]               # standard errors
+    std: dict[str, float]               # standard errors (noise and model-form error)
+    std_stat: dict[str, float]          # the noise part alone (Gauss-Newton)
     correlation: np.ndarray             # 3x3 correlation of the estimates
     method: str
     fitness: str
@@ -60,7 +65,7 @@ class Diagnosis:
 
     def as_dict(self) -> dict:
         k = self.faults
-        return {"k_gm": k.k_gm, "k_fsj": k.k_fsj, "k_bkl": k.k_bkl, "std": self.std,
+        return {"k_gm": k.k_gm, "k_fsj": k.k_fsj, "k_bkl": k.k_bkl, "std": self.std, "std_stat": self.std_stat,
                 "correlation": np.round(self.correlation, 4).tolist(), "method": self.method,
                 "fitness": self.fitness, "cost": self.cost, "evaluations": self.evaluations,
                 "wall_time_s": self.wall_time_s, "warnings": self.warnings, "rms": self.rms,
@@ -223,8 +228,15 @@ def _autocorr_inflation(res: np.ndarray, n_channels: int) -> float:
     return total / weight if weight > 0 else 1.0
 
 
-def uncertainty(ev: Evaluator, fit: LsqFitness, x: np.ndarray, upper: float = UPPER):
-    """Standard errors and correlation of the estimate at ``x`` (lsq residual)."""
+def uncertainty(ev: Evaluator, fit: LsqFitness, x: np.ndarray, upper: float = UPPER,
+                model_sd: np.ndarray | None = None):
+    """Standard errors and correlation of the estimate at ``x`` (lsq residual).
+
+    Returns ``(sd, corr, sd_stat)``: ``sd_stat`` from the Gauss-Newton covariance
+    (noise, inflated for residual autocorrelation); ``sd`` adds the monitor model's
+    own (model-form) error ``model_sd`` in quadrature, since the fit residual cannot
+    reveal a bias that the model shares with itself.
+    """
     X, steps = _perturbed(x, 5e-3, upper)
     r0, J = _jacobian(fit, ev.run(X), steps)
     m = len(r0)
@@ -234,12 +246,42 @@ def uncertainty(ev: Evaluator, fit: LsqFitness, x: np.ndarray, upper: float = UP
         cov = np.linalg.pinv(JtJ) * s2 * _autocorr_inflation(r0, len(fit.meas.channels))
     except np.linalg.LinAlgError:
         cov = np.full((3, 3), np.inf)
+    sd_stat = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    if model_sd is not None:
+        cov = cov + np.diag(np.asarray(model_sd, float) ** 2)
     sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(sd, sd)
     corr = np.nan_to_num(corr)
     np.fill_diagonal(corr, 1.0)
-    return sd, corr
+    return sd, corr, sd_stat
+
+
+@functools.lru_cache(maxsize=None)
+def _model_error_file(path: str | None) -> tuple[float, float, float]:
+    import yaml
+    from importlib import resources
+    text = Path(path).read_text() if path else resources.files(__package__).joinpath(
+        "data/model_error.yaml").read_text()
+    data = yaml.safe_load(text) or {}
+    sd = data.get("model_error_sd", {})
+    try:
+        vals = tuple(float(sd[n]) for n in NAMES)
+    except (KeyError, TypeError, ValueError):
+        raise ValueError(f"model error file {path or 'data/model_error.yaml'}: needs model_error_sd "
+                         f"with {', '.join(NAMES)}") from None
+    if not all(np.isfinite(v) and v >= 0 for v in vals):
+        raise ValueError(f"model error file {path}: values must be finite and >= 0, got {vals}")
+    return vals
+
+
+def model_error(path: str | Path | None = None) -> np.ndarray:
+    """Model-form error of the monitor model, 1 sd per coefficient (data/model_error.yaml).
+
+    Measured as the RMS identification error on clean reference runs (no noise,
+    so all of it is model mismatch); the file records the command that made it.
+    """
+    return np.array(_model_error_file(str(path) if path else None))
 
 
 def twin_warnings(corr: np.ndarray, x: np.ndarray, pop=None, pop_cost=None, cost=None) -> list[str]:
@@ -323,7 +365,7 @@ def diagnose(response: Response, method: str = "hybrid", fitness: str = "lsq", s
     out = ev.one(x)
     cost = float(fit.cost(out))
     lsq = fit if isinstance(fit, LsqFitness) else LsqFitness(meas)
-    sd, corr = uncertainty(ev, lsq, x, opts.upper)
+    sd, corr, sd_stat = uncertainty(ev, lsq, x, opts.upper, model_error())
     warn += twin_warnings(corr, x, pop, pop_cost, cost)
     if np.any(x >= opts.upper - 1e-6):
         warn.append("an estimate sits on the upper search bound: damage beyond the modelled range")
@@ -331,7 +373,7 @@ def diagnose(response: Response, method: str = "hybrid", fitness: str = "lsq", s
     rms = {c: float(np.sqrt(np.mean((getattr(fitted, c) - getattr(response, c)) ** 2)))
            for c in ("position", "velocity", "pressure", "current")}
     return Diagnosis(faults=Faults(*(float(v) for v in x)), std=dict(zip(NAMES, map(float, sd))),
-                     correlation=corr, method=method, fitness=fitness, cost=cost, evaluations=ev.n,
+                     std_stat=dict(zip(NAMES, map(float, sd_stat))), correlation=corr, method=method, fitness=fitness, cost=cost, evaluations=ev.n,
                      wall_time_s=time.perf_counter() - t0, history=history, warnings=warn, start=start,
                      fitted=fitted, rms=rms, seed=int(seed))
 
