@@ -39,9 +39,8 @@ HEALTH = Topic("eha/health", "std_msgs/msg/Float64MultiArray", 1, True,
 DIAGNOSTICS = Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", 100, False,
                     "one DiagnosticStatus per actuator, re-published every diagnostics_period_s")
 
-#: What the monitor needs from a rig, and what it records.
+#: What the monitor needs from a rig (and records as received).
 INPUTS = (COMMAND, JOINT_STATE, PRESSURE, CURRENT, TEST_WINDOW)
-OUTPUTS = (HEALTH, DIAGNOSTICS)
 #: Measured channels: topic -> Response channel(s) it carries.
 CHANNELS = {COMMAND.name: ("command",), JOINT_STATE.name: ("position", "velocity"),
             PRESSURE.name: ("pressure",), CURRENT.name: ("current",)}

@@ -5,7 +5,6 @@ ros2-from-pypi notes give). The identification tolerance on clean data is 0.01.
 """
 import os
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -185,3 +184,15 @@ def test_periodic_tests_play_back_to_back_and_each_is_diagnosed():
     assert b["start_ns"] - a["start_ns"] == 4_000_000_000
     assert b["diagnosis"] is not None and abs(b["diagnosis"].faults.k_gm - 0.3) <= TOL
     assert abs(a["diagnosis"].faults.k_gm - 0.3) <= TOL
+
+
+def test_launch_ends_at_once_when_a_node_refuses_its_parameters(tmp_path):
+    import time
+    domain = 1 + (int(os.environ["ROS_DOMAIN_ID"]) + 60) % 200
+    t0 = time.monotonic()
+    res = launch(Faults(0.4, 0.0, 0.0), effects=["oil_foam"], rate=0.0, log_path=tmp_path / "x.mcap",
+                 domain_id=domain, timeout_s=120)
+    assert not res["ok"]
+    assert res["returncodes"]["plant"] == 2          # refused at start, one line, no traceback
+    assert time.monotonic() - t0 < 60                # not left waiting for the 120 s timeout
+    assert all(rc is not None for rc in res["returncodes"].values())

@@ -18,10 +18,9 @@ from msg_bridge import convert as cv
 from .mcaplog import Bag, BagError, read_bag
 from .response import Response
 from .sequence import FDISequence
-from .window import Samples, WindowError, assemble
+from .window import NS, Samples, WindowError, assemble
 
 SIGNALS = (C.COMMAND, C.JOINT_STATE, C.PRESSURE, C.CURRENT)
-NS = 1_000_000_000
 
 
 @dataclass
@@ -32,6 +31,13 @@ class Run:
     truth: dict[str, str] | None     # metadata 'truth/test_<id>' (simulated runs)
     recorded: dict[str, str] | None  # metadata 'diagnosis/test_<id>' (what the live monitor said)
     notes: list[str] = field(default_factory=list)
+
+
+def truth_values(record: dict[str, str] | None) -> dict[str, float] | None:
+    """The fault coefficients of a ``truth/test_<id>`` metadata record (strings) as numbers."""
+    if not record:
+        return None
+    return {k: float(record[k]) for k in ("k_gm", "k_fsj", "k_bkl")}
 
 
 def resolve_topics(types: dict[str, str], path, namespace: str | None = None) -> dict[str, str]:
@@ -69,11 +75,10 @@ def _channels(bag: Bag, names: dict[str, str]) -> dict[str, Samples]:
     return {c: Samples.of(p) for c, p in pairs.items()}
 
 
-def complete_windows(bag: Bag, topic: str | None = None) -> dict[int, dict]:
-    """Test id -> {'start': ns, 'end': ns} of the windows with both marks."""
+def complete_windows(bag: Bag, topic: str | None) -> dict[int, dict]:
+    """Test id -> {'start': ns, 'end': ns} of the windows with both marks on ``topic``
+    (the bag's test-window topic, from :func:`resolve_topics`; None: the bag has none)."""
     marks: dict[int, dict] = {}
-    if topic is None:
-        topic = resolve_topics(bag.types, bag.path).get(C.TEST_WINDOW.name)
     for i, msg in enumerate(bag.messages.get(topic, []) if topic else []):
         try:
             ns, event, tid = cv.window_from_msg(msg)

@@ -27,12 +27,36 @@ def msg_class(topic: Topic):
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
 
+def teardown(executor, nodes, context=None) -> None:
+    """Stop in the order rclpy 7.1.6 needs (ros2-from-pypi notes): executor, then each
+    node (its own ``close`` first: worker, log), then the context."""
+    import rclpy
+    if executor is not None:
+        executor.shutdown()
+    for n in nodes:
+        if hasattr(n, "close"):
+            n.close()
+        n.destroy_node()
+    if rclpy.ok(context=context):
+        rclpy.shutdown(context=context)
+
+
 def run_node(factory, args=None) -> int:
-    """``main`` of a console script: spin one node until Ctrl-C or until it asks to stop."""
+    """``main`` of a console script: spin one node until Ctrl-C or until it asks to stop.
+
+    Exit codes: 0 done or interrupted, 1 a node's own error, 2 a parameter it refused at start.
+    """
+    import sys
+
     import rclpy
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     rclpy.init(args=args)
-    node = factory()
+    try:
+        node = factory()
+    except ValueError as e:     # bad parameter: one line, not a traceback
+        print(f"error: {e}", file=sys.stderr)
+        teardown(None, [])
+        return 2
     ex = SingleThreadedExecutor()
     ex.add_node(node)
     rc = 0
@@ -45,11 +69,5 @@ def run_node(factory, args=None) -> int:
         node.get_logger().error(f"{type(e).__name__}: {e}")
         rc = 1
     finally:
-        close = getattr(node, "close", None)
-        if close:
-            close()
-        ex.shutdown()
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+        teardown(ex, [node])
     return rc

@@ -20,11 +20,11 @@ from std_srvs.srv import Trigger
 
 from msg_bridge import contract as C
 from msg_bridge import convert as cv
+from msg_bridge.convert import NS
 
 from ..sequence import FDISequence
 from . import msg_class, qos, run_node
 
-NS = 1_000_000_000
 
 
 class CommandNode(Node):

@@ -16,8 +16,7 @@ import time
 from pathlib import Path
 
 from ..params import Faults
-
-NS = 1_000_000_000
+from . import teardown
 
 
 class GraphTimeout(RuntimeError):
@@ -40,8 +39,7 @@ class Graph:
 
     def __init__(self, faults: Faults = Faults(), effects: tuple[str, ...] = (), seed: int = 0, rate: float = 0.0,
                  method: str = "hybrid", fitness: str = "lsq", monitor_seed: int = 0, log_path: str | Path = "",
-                 executor: str = "single", actuator_id: str = "eha", namespace: str = "", extra_nodes=(),
-                 truth: bool = True):
+                 executor: str = "single", actuator_id: str = "eha", namespace: str = "", truth: bool = True):
         import rclpy
         from rclpy.parameter import Parameter
         from rclpy.signals import SignalHandlerOptions
@@ -53,6 +51,7 @@ class Graph:
         rclpy.init(context=self.ctx, signal_handler_options=SignalHandlerOptions.NO)
         P = Parameter
         ns = {"namespace": namespace} if namespace else {}
+        self.nodes = []
         try:
             self.plant = PlantNode(context=self.ctx, parameter_overrides=[
                 P("k_gm", value=float(faults.k_gm)), P("k_fsj", value=float(faults.k_fsj)),
@@ -65,7 +64,7 @@ class Graph:
                 P("method", value=method), P("fitness", value=fitness), P("seed", value=int(monitor_seed)),
                 P("log_path", value=str(log_path)), P("plant_node", value=plant_fqn if truth else ""),
                 P("actuator_id", value=actuator_id)], **ns)
-            self.nodes = [self.plant, self.command, self.monitor, *extra_nodes]
+            self.nodes = [self.plant, self.command, self.monitor]
             if executor == "events":
                 from rclpy.experimental import EventsExecutor
                 self.ex = EventsExecutor(context=self.ctx)
@@ -121,18 +120,8 @@ class Graph:
 
     # ---------------------------------------------------------------- teardown
     def close(self) -> None:
-        """Teardown in the order that rclpy 7.1.6 needs (see ros2-from-pypi notes)."""
-        import rclpy
-        ex = getattr(self, "ex", None)
-        if ex is not None:
-            ex.shutdown()
-        for n in getattr(self, "nodes", ()):
-            if hasattr(n, "close"):
-                n.close()
-            n.destroy_node()
+        teardown(getattr(self, "ex", None), getattr(self, "nodes", ()), self.ctx)
         self.nodes = []
-        if self.ctx.ok():
-            rclpy.shutdown(context=self.ctx)
 
     def __enter__(self):
         return self
@@ -173,6 +162,7 @@ def log_results(log_path: str | Path) -> list[dict]:
     """The monitor's verdicts recorded in an MCAP log (metadata 'diagnosis/test_<id>', 'truth/test_<id>')."""
     import json
 
+    from ..bagrun import truth_values
     from ..mcaplog import read_bag
     meta = read_bag(log_path, topics=[]).metadata
     out = []
@@ -180,9 +170,7 @@ def log_results(log_path: str | Path) -> list[dict]:
         if name.startswith("diagnosis/test_"):
             tid = int(name.rsplit("_", 1)[1])
             d = {k: json.loads(v) for k, v in rec.items()}
-            truth = meta.get(f"truth/test_{tid}")
-            out.append({"test_id": tid, "diagnosis": d,
-                        "truth": {k: float(truth[k]) for k in ("k_gm", "k_fsj", "k_bkl")} if truth else None})
+            out.append({"test_id": tid, "diagnosis": d, "truth": truth_values(meta.get(f"truth/test_{tid}"))})
     return sorted(out, key=lambda r: r["test_id"])
 
 
@@ -225,12 +213,15 @@ def launch(faults: Faults = Faults(), effects=(), seed: int = 0, tests: int = 1,
     }
     procs = {name: subprocess.Popen([sys.executable, "-m", f"eha_health.nodes.{name}", *_ros_args(p), *ns], env=env)
              for name, p in cmds.items()}
-    ok = False
+    end = time.monotonic() + timeout_s
     try:
-        procs["monitor"].wait(timeout=timeout_s)
+        # the monitor exits after `tests` verdicts (the command node, done playing, may exit
+        # before it); a child that fails (e.g. a plant refusing its parameters) ends the run at once
+        while procs["monitor"].poll() is None and time.monotonic() < end:
+            if any(p.poll() not in (None, 0) for p in procs.values()):
+                break
+            time.sleep(0.1)
         ok = procs["monitor"].returncode == 0
-    except subprocess.TimeoutExpired:
-        pass
     finally:
         _stop(list(procs.values()))
     results = log_results(log_path) if log_path.exists() else []
@@ -253,14 +244,16 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
     from rclpy.parameter import Parameter
     from rclpy.signals import SignalHandlerOptions
 
-    from ..bagrun import complete_windows
+    from ..bagrun import complete_windows, resolve_topics, truth_values
     from ..mcaplog import read_bag
     from .monitor import MonitorNode
     from .replay import ReplayNode
+    from msg_bridge import contract as C
     if domain_id is not None:
         os.environ["ROS_DOMAIN_ID"] = str(domain_id)
-    src = read_bag(bag, topics=[])
-    n_windows = len(complete_windows(read_bag(bag))) if with_monitor else 0
+    win_topic = resolve_topics(read_bag(bag, topics=[]).types, bag).get(C.TEST_WINDOW.name)
+    marks = read_bag(bag, topics=[win_topic] if win_topic else [])   # the marks and the metadata
+    n_windows = len(complete_windows(marks, win_topic)) if with_monitor else 0
     ctx = rclpy.Context()
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     nodes = []
@@ -286,21 +279,13 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
         linger = time.monotonic() + 1.0   # let reliable deliveries to other processes complete
         while mon is None and time.monotonic() < linger:
             ex.spin_once(timeout_sec=0.01)
-        results = []
-        for r in (mon.results if mon else []):
-            d = r["diagnosis"]
-            truth = src.metadata.get(f"truth/test_{r['test_id']}")
-            results.append({"test_id": r["test_id"], "level": r["level"], "message": r["message"],
-                            "diagnosis": d.as_dict() if d else None,
-                            "truth": {k: float(truth[k]) for k in ("k_gm", "k_fsj", "k_bkl")} if truth else None})
+        results = [{"test_id": r["test_id"], "level": r["level"], "message": r["message"],
+                    "diagnosis": r["diagnosis"].as_dict() if r["diagnosis"] else None,
+                    "truth": truth_values(marks.metadata.get(f"truth/test_{r['test_id']}"))}
+                   for r in (mon.results if mon else [])]
         sent = rep.sent
     finally:
-        ex.shutdown()
-        for n in nodes:
-            if hasattr(n, "close"):
-                n.close()
-            n.destroy_node()
-        rclpy.shutdown(context=ctx)
+        teardown(ex, nodes, ctx)
     ok = [r for r in results if r["diagnosis"]]
     summary = f"replayed {sent} messages from {bag} at rate {rate:g}"
     if with_monitor:

@@ -28,12 +28,12 @@ from rclpy.serialization import deserialize_message
 
 from msg_bridge import contract as C
 from msg_bridge import convert as cv
+from msg_bridge.convert import NS
 
 from ..identify import METHODS, NAMES, diagnose
 from ..window import Samples, WindowError, assemble
 from . import msg_class, qos, run_node
 
-NS = 1_000_000_000
 #: Samples kept per channel (60 s at 1 kHz): older ones can no longer be in a window.
 BUFFER = 60_000
 

@@ -84,12 +84,6 @@ class PlantNode(Node):
                                f"effects {list(self.plant.params.enabled_effects())}")
         return SetParametersResult(successful=True)
 
-    def truth(self) -> dict[str, str]:
-        """What was simulated (for MCAP metadata; never published on a signal topic)."""
-        f = self.plant.faults
-        return {"k_gm": repr(f.k_gm), "k_fsj": repr(f.k_fsj), "k_bkl": repr(f.k_bkl),
-                "effects": ",".join(self.plant.params.enabled_effects()), "seed": str(self.plant.seed)}
-
     # ---------------------------------------------------------------- samples
     def _on_command(self, msg) -> None:
         try:

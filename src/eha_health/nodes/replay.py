@@ -13,10 +13,10 @@ from pathlib import Path
 from rclpy.node import Node
 
 from msg_bridge import contract as C
+from msg_bridge.convert import NS
 
 from . import msg_class, qos, run_node
 
-NS = 1_000_000_000
 
 
 def recorded_inputs(path: str | Path) -> list[tuple[int, str, bytes]]:
@@ -69,9 +69,8 @@ class ReplayNode(Node):
             if not self._ready():
                 return
             self._t0_wall = now
-            self._cap_t, self._cap_sent = now, 0
         rate = float(self.get_parameter("rate").value)
-        cap = int((now - self._cap_t) * float(self.get_parameter("max_msgs_per_s").value)) + 1 - self._cap_sent
+        cap = int((now - self._t0_wall) * float(self.get_parameter("max_msgs_per_s").value)) + 1 - self.sent
         n = len(self.rows)
         if rate > 0:
             horizon = self.rows[0][0] + (now - self._t0_wall) * rate * NS
@@ -82,7 +81,6 @@ class ReplayNode(Node):
             end = min(n, self.sent + max(cap, 0))
         for _, topic, data in self.rows[self.sent:end]:
             self.pubs[topic].publish(data)
-        self._cap_sent += end - self.sent
         self.sent = end
 
 
