@@ -1,6 +1,7 @@
 """``eha-health``: the command-line entry point.
 
-Subcommands: simulate, calibrate, signatures, bench speed, demo. Bad input exits
+Subcommands: simulate, calibrate, signatures, bench, diagnose, demo, record, launch, replay,
+import, discrepancy. Bad input exits
 with code 2 and one line that says what is wrong.
 """
 from __future__ import annotations
@@ -9,6 +10,8 @@ import argparse
 import json
 import sys
 from pathlib import Path
+
+import numpy as np
 
 from .params import EFFECT_NAMES, Faults, load
 
@@ -106,8 +109,25 @@ def cmd_bench(args) -> int:
         res = graph(rate=args.rate, progress=None if (args.json or args.quiet) else _progress_line)
         print(json.dumps(res, indent=2) if args.json else format_graph(res))
         return 0
+    if args.what == "floor":
+        from .discbench import floor_yaml, residual_floor
+        from .discrepancy import Settings
+        res = residual_floor(n=args.random or 12, seed=args.seed or 2024,
+                             progress=None if (args.json or args.quiet) else _progress_line)
+        if args.write:
+            st = Settings()
+            Path(args.write).write_text(floor_yaml(res, "eha-health " + " ".join(args.raw),
+                                                   {"held_out_ratio": st.held_out_ratio, "fit_ratio": st.fit_ratio}))
+        print(json.dumps(res, indent=2))
+        return 0
+    if args.what == "discrepancy":
+        from .discbench import format_synthetic, synthetic
+        res = synthetic(seed=args.seed, n_noise=args.random or 6,
+                        progress=None if (args.json or args.quiet) else _progress_line)
+        print(json.dumps(res, indent=2, default=float) if args.json else "\n" + format_synthetic(res))
+        return 0
     if args.what != "paper":
-        raise UsageError(f"unknown benchmark {args.what!r}; available: speed, paper, graph")
+        raise UsageError(f"unknown benchmark {args.what!r}; available: speed, paper, graph, floor, discrepancy")
     from .identify import METHODS
     from .paperbench import format_markdown, format_text, run_bench
     methods = METHODS if args.method == "all" else (args.method,)
@@ -216,7 +236,8 @@ def cmd_record(args) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.unlink(missing_ok=True)
-    with Graph(faults=faults, effects=tuple(effects), seed=args.seed, log_path=out, truth=not args.no_truth) as g:
+    with Graph(faults=faults, effects=tuple(effects), seed=args.seed, log_path=out, truth=not args.no_truth,
+               params_file=str(Path(args.params).resolve()) if args.params else "") as g:
         for _ in range(args.tests):
             r = g.run_test()
             if not args.quiet:
@@ -241,6 +262,84 @@ def cmd_replay(args) -> int:
     res = replay(args.bag, rate=args.rate, with_monitor=not args.no_monitor, log_path=args.log,
                  domain_id=args.domain_id)
     print(json.dumps(res, indent=2, default=float) if args.json else res["summary"])
+    return 0
+
+
+def cmd_import(args) -> int:
+    from .importer import import_text
+    r = import_text(args.file, args.map)
+    out = Path(args.out)
+    measured = r.meta["measured"]
+    if out.suffix.lower() == ".csv":
+        out.parent.mkdir(parents=True, exist_ok=True)
+        r.to_csv(out)
+    elif out.suffix.lower() == ".mcap":
+        missing = [c for c in ("velocity", "pressure", "current") if c not in measured]
+        if missing:
+            raise UsageError(f"{out}: the MCAP topic contract (docs/interfaces.md) needs position, velocity, "
+                             f"pressure and current; this map has no {', '.join(missing)}: write a .csv instead")
+        from .bagrun import write_run
+        from .mcaplog import BagWriter
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with BagWriter(out) as w:
+            write_run(w, r)
+    else:
+        raise UsageError(f"--out must end in .csv or .mcap, got {out.name}")
+    load = f", load {np.ptp(r.load):.4g} N peak-to-peak" if r.load is not None else ""
+    print(f"wrote {out}: {len(r.t)} samples at {r.sample_rate:.6g} Hz over {r.t[-1]:.3f} s; measured "
+          f"{', '.join(measured)}{load}; command {np.ptp(r.command) * 1e3:.4g} mm peak-to-peak")
+    return 0
+
+
+def _discrepancy_mode(r) -> str:
+    from .fitness import check_window
+    from .sequence import FDISequence
+    if not all(np.isfinite(getattr(r, c)).all() for c in ("position", "velocity", "pressure", "current")):
+        return "rig"
+    try:
+        check_window(r, FDISequence())
+    except ValueError:
+        return "rig"
+    return "fdi"
+
+
+def cmd_discrepancy(args) -> int:
+    from .discrepancy import analyse_fdi_test, format_report
+    from .response import Response
+    path = Path(args.run)
+    if args.max_effects < 0:
+        raise UsageError(f"--max-effects must be >= 0, got {args.max_effects}")
+    if path.suffix.lower() == ".mcap":
+        r, truth, notes = _load_run(path, args.test)
+    else:
+        if args.test is not None:
+            raise UsageError("--test applies to MCAP bags only")
+        r, truth, notes = Response.from_csv(path, required=("t", "command", "position")), None, []
+    for n in notes:
+        print(f"note: {n}", file=sys.stderr)
+    mode = _discrepancy_mode(r) if args.mode == "auto" else args.mode
+    progress = None if (args.json or args.quiet) else _progress_line
+    if mode == "fdi":
+        rep = analyse_fdi_test(r, max_effects=args.max_effects, seed=args.seed, truth=truth, progress=progress)
+    else:
+        from .rig import analyse_rig
+        rep = analyse_rig(r, max_effects=args.max_effects, fit_fraction=args.fit_fraction, progress=progress)
+    if args.plot:
+        from .plotting import plot_discrepancy
+        plot_discrepancy(rep, args.plot)
+    if args.json:
+        out = rep.as_dict()
+        out["mode"] = mode
+        out["source"] = str(path)
+        if truth is not None:
+            out["truth"] = truth
+        print(json.dumps(out, default=float))
+        return 0
+    if progress:
+        print(file=sys.stderr)
+    print(format_report(rep, f"{path} ({mode})"))
+    if args.plot:
+        print(f"  plot: {args.plot}")
     return 0
 
 
@@ -269,15 +368,18 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--quiet", action="store_true")
     g.set_defaults(func=cmd_signatures)
 
-    b = sub.add_parser("bench", help="benchmarks: speed | paper | graph")
-    b.add_argument("what", help="speed, paper or graph")
+    b = sub.add_parser("bench", help="benchmarks: speed | paper | graph | floor | discrepancy")
+    b.add_argument("what", help="speed, paper, graph, floor (the monitor's residual floor) or discrepancy "
+                                "(the loop on synthetic undeclared effects)")
+    b.add_argument("--write", metavar="YAML", help="floor: write the settings file, e.g. src/eha_health/data/discrepancy.yaml")
     b.add_argument("--rate", type=float, default=0.0, help="graph: command playback speed (0 as fast as possible)")
     b.add_argument("--json", action="store_true")
     b.add_argument("--no-compile", action="store_true", help="speed: skip the fresh-process compile-time measurement")
     b.add_argument("--method", default="all", help="paper: deterministic, ga, hybrid or all")
     b.add_argument("--fitness", choices=("lsq", "paper"), default="lsq", help="paper: fitness function")
     b.add_argument("--noise", action="store_true", help="paper: default sensor noise on the reference runs")
-    b.add_argument("--random", type=int, default=0, metavar="N", help="paper: add N random K triples in [0,1]^3")
+    b.add_argument("--random", type=int, default=0, metavar="N",
+                   help="paper: add N random K triples in [0,1]^3; floor: runs (12); discrepancy: noise-only runs (6)")
     b.add_argument("--seed", type=int, default=0, help="paper: seed of random cases, noise and GA")
     b.add_argument("--no-de", action="store_true", help="paper: skip the scipy differential_evolution peer")
     b.add_argument("--markdown", help="paper: write the tables to this Markdown file")
@@ -309,6 +411,7 @@ def build_parser() -> argparse.ArgumentParser:
     rc.add_argument("--seed", type=int, default=0, help="plant noise seed")
     rc.add_argument("--tests", type=int, default=1)
     rc.add_argument("--no-truth", action="store_true", help="do not write the plant's truth into the metadata")
+    rc.add_argument("--params", help="YAML overriding the plant's parameters (e.g. an undeclared supply sag)")
     rc.add_argument("--out", required=True, help="MCAP file")
     rc.add_argument("--quiet", action="store_true")
     rc.set_defaults(func=cmd_record)
@@ -334,6 +437,27 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--domain-id", type=int, help="ROS_DOMAIN_ID to publish on")
     rp.add_argument("--json", action="store_true")
     rp.set_defaults(func=cmd_replay)
+
+    im = sub.add_parser("import", help="measured rig data (delimited text) into the project's format")
+    im.add_argument("file", help="text/CSV data file")
+    im.add_argument("--map", required=True, help="YAML channel map (columns, scales, units; see docs/discrepancy.md)")
+    im.add_argument("--out", required=True, help="RUN.csv (any channels) or RUN.mcap (all four measured channels)")
+    im.set_defaults(func=cmd_import)
+
+    dc = sub.add_parser("discrepancy", help="residual -> missing effect -> augmented model, before and after")
+    dc.add_argument("run", help="CSV (simulate or import format) or MCAP bag")
+    dc.add_argument("--test", type=int, help="MCAP: test window id")
+    dc.add_argument("--max-effects", type=int, default=2, help="most effects to add (default 2)")
+    dc.add_argument("--mode", choices=("auto", "fdi", "rig"), default="auto",
+                    help="fdi: an FDI test of the shipped EHA (faults re-identified); rig: calibrate the "
+                         "nominal loop to a measured rig first (auto: fdi when all channels and the FDI "
+                         "sequence are there)")
+    dc.add_argument("--fit-fraction", type=float, default=0.7, help="rig: share of the record fitted (rest held out)")
+    dc.add_argument("--seed", type=int, default=0, help="fdi: seed of the diagnosis")
+    dc.add_argument("--json", action="store_true", help="one JSON object: before, after, candidates, selected")
+    dc.add_argument("--plot", help="PNG: residuals before and after, and the candidate ranking")
+    dc.add_argument("--quiet", action="store_true")
+    dc.set_defaults(func=cmd_discrepancy)
     return ap
 
 

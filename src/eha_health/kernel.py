@@ -31,9 +31,11 @@ def init_state(p, s, dbuf):
 
 
 @njit(cache=True, error_model="numpy")
-def run(p, s, cmd, noise, dbuf, out):
+def run(p, s, cmd, load, noise, dbuf, out):
     """Advance ``len(cmd)`` output samples; writes ``out[k, :]`` (see layout.OUT_NAMES).
 
+    ``load`` is a measured external force on the surface per sample [N], opposing
+    +x like ``f_load`` and held over the sample (a rig's load cell), or empty for none.
     ``noise`` is the electrical current noise per fine step for this chunk
     (length len(cmd) * steps_per_sample), or empty for none.
     """
@@ -41,6 +43,7 @@ def run(p, s, cmd, noise, dbuf, out):
     dt = p[P_DT]
     reference = p[P_MODEL] == 0.0
     has_noise = noise.shape[0] > 0
+    has_load = load.shape[0] > 0
     for k in range(cmd.shape[0]):
         out[k, O_CMD] = cmd[k]
         out[k, O_POS] = s[S_XM]
@@ -50,6 +53,7 @@ def run(p, s, cmd, noise, dbuf, out):
         out[k, O_XS] = s[S_XS]
         out[k, O_XJ] = s[S_XJ]
         x_cmd = cmd[k]
+        f_ext = load[k] if has_load else 0.0
         for j in range(nsub):
             # GAS acts on the jack velocity (rate of the actuator's own transducer): an inner loop
             # that damps the jack across the backlash gap, where the surface reading is blind
@@ -63,19 +67,19 @@ def run(p, s, cmd, noise, dbuf, out):
                 xs = first_stage_monitor(p, s, i_v, dt)
             f_link = link_force(p, s)
             jack_step(p, s, xs, -f_link, dt)
-            surface_step(p, s, f_link, dt)
+            surface_step(p, s, f_link - f_ext, dt)
             transducer_step(p, s, dbuf)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def run_batch(P, cmd, out):
+def run_batch(P, cmd, load, out):
     """Simulate every parameter row of ``P`` from rest, in parallel; ``out[b]`` per row."""
     empty = np.zeros(0)
     for b in prange(P.shape[0]):
         s = np.zeros(N_S)
-        dbuf = np.zeros((int(P[b, P_DELAY]) + 1, 2))
+        dbuf = np.zeros((int(P[b, P_DELAY]) + 2, 2))
         init_state(P[b], s, dbuf)
-        run(P[b], s, cmd, empty, dbuf, out[b])
+        run(P[b], s, cmd, load, empty, dbuf, out[b])
 
 
 def new_output(n: int) -> np.ndarray:

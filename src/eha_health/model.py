@@ -81,7 +81,7 @@ class Plant:
         else:
             noise = np.zeros(0)
         out = kernel.new_output(len(cmd))
-        kernel.run(self.p, self.state, cmd, noise, self.dbuf, out)
+        kernel.run(self.p, self.state, cmd, np.zeros(0), noise, self.dbuf, out)
         self.samples += len(cmd)
         return acquisition(out, eff, self._rng_acq)
 
@@ -109,7 +109,19 @@ def simulate_batch(params: ModelParams, faults: list[Faults], command: np.ndarra
 
     Returns an array ``[len(faults), len(command), N_OUT]``.
     """
-    P = np.stack([pack(params, f) for f in faults])
-    out = np.zeros((len(faults), len(command), 7))
-    kernel.run_batch(P, np.ascontiguousarray(command, dtype=float), out)
+    return simulate_packed(np.stack([pack(params, f) for f in faults]), command)
+
+
+def simulate_packed(P: np.ndarray, command: np.ndarray, load: np.ndarray | None = None) -> np.ndarray:
+    """Simulate packed parameter rows ``P`` (see :func:`params.pack`) in parallel, noise-free.
+
+    ``load`` is an optional measured external force per sample [N] (opposing +x).
+    Returns an array ``[len(P), len(command), N_OUT]``.
+    """
+    cmd = np.ascontiguousarray(command, dtype=float)
+    ld = np.zeros(0) if load is None else np.ascontiguousarray(load, dtype=float)
+    if len(ld) and len(ld) != len(cmd):
+        raise ValueError(f"load has {len(ld)} samples but the command has {len(cmd)}")
+    out = np.zeros((len(P), len(cmd), 7))
+    kernel.run_batch(np.ascontiguousarray(P, dtype=float), cmd, ld, out)
     return out

@@ -478,7 +478,7 @@ def pack(params: ModelParams, faults: Faults = Faults()) -> np.ndarray:
     if e.compressibility.enabled:
         p[L.P_COMP], p[L.P_BETA], p[L.P_V0] = 1.0, e.compressibility.bulk_modulus, e.compressibility.chamber_volume
     if e.sensor_delay.enabled:
-        p[L.P_DELAY] = round(e.sensor_delay.delay / ig.dt)
+        p[L.P_DELAY] = e.sensor_delay.delay / ig.dt   # fractional: interpolated in the kernel
     p[L.P_XGAIN] = 1.0
     if e.sensor_calibration.enabled:
         p[L.P_XBIAS], p[L.P_XGAIN] = e.sensor_calibration.bias, 1.0 + e.sensor_calibration.gain_error

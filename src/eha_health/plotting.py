@@ -110,3 +110,36 @@ def plot_diagnosis(measured: Response, diagnosis, path: str | Path):
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
+
+
+_SCALE = {"position": (1e6, "um"), "velocity": (1e3, "mm/s"), "pressure": (1e-3, "kPa"), "current": (1e6, "uA")}
+
+
+def plot_discrepancy(rep, path: str | Path):
+    """Residual (fitted - measured) per channel before and after augmentation, and the ranking."""
+    chans = list(rep.measured)
+    fig, axes = plt.subplots(len(chans) + 1, 1, figsize=(10, 2.3 * (len(chans) + 1) + 0.5))
+    for ax, c in zip(axes, chans):
+        k, unit = _SCALE[c]
+        ax.plot(rep.t, (rep.fitted_before[c] - rep.measured[c]) * k, lw=0.7,
+                label=f"before: RMS {rep.before.rms[c] * k:.3g} {unit}")
+        ax.plot(rep.t, (rep.fitted_after[c] - rep.measured[c]) * k, lw=0.7,
+                label=f"after ({', '.join(rep.selected) or 'unchanged'}): RMS {rep.after.rms[c] * k:.3g} {unit}")
+        ax.axvline(rep.split_time_s, color="0.5", ls=":", lw=1)
+        ax.set_ylabel(f"{c} residual [{unit}]")
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=7)
+    axes[len(chans) - 1].set_xlabel("t [s]  (dotted: fit | held-out split)")
+    ax = axes[-1]
+    first = [c for c in rep.candidates if c.round == 1]
+    names = [c.name for c in first]
+    ax.barh(range(len(first)), [c.held_out_ratio for c in first],
+            color=["tab:green" if c.selected else "tab:gray" for c in first])
+    ax.set_yticks(range(len(first)), names, fontsize=7)
+    ax.invert_yaxis()
+    ax.axvline(1.0, color="k", lw=0.8)
+    ax.set_xlabel("round 1: held-out residual power with the candidate / without (ranked by information criterion)")
+    fig.suptitle(f"discrepancy: {rep.verdict}")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)

@@ -4,7 +4,10 @@ CSV format (``eha-health simulate``): header ``t,command,position,velocity,press
 current,spool`` then one row per sample. t [s]; command, position [m]; velocity [m/s];
 pressure = jack differential pressure P12 [Pa]; current = servovalve current [A];
 spool = spool position [m]. Position and velocity are what the position transducer
-sees: the surface (user) side of the backlash.
+sees: the surface (user) side of the backlash. An imported rig record (``eha-health
+import``) may also carry ``load`` = measured external force on the actuator [N]
+(opposing +x), and holds only the channels the rig measured: the others are empty
+in the CSV and NaN in memory.
 """
 from __future__ import annotations
 
@@ -30,6 +33,7 @@ class Response:
     spool: np.ndarray
     jack_position: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
+    load: np.ndarray | None = None
 
     @property
     def sample_rate(self) -> float:
@@ -39,19 +43,23 @@ class Response:
         return len(self.t)
 
     def to_csv(self, path: str | Path) -> None:
-        data = np.column_stack([getattr(self, c) for c in CSV_COLUMNS])
-        np.savetxt(path, data, delimiter=",", header=",".join(CSV_COLUMNS), comments="", fmt="%.10g")
+        cols = CSV_COLUMNS + (("load",) if self.load is not None else ())
+        data = np.column_stack([getattr(self, c) for c in cols])
+        np.savetxt(path, data, delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
 
     @classmethod
-    def from_csv(cls, path: str | Path) -> "Response":
-        """Read a CSV in the format above; ``ValueError`` names what is wrong."""
+    def from_csv(cls, path: str | Path, required: tuple[str, ...] = CSV_COLUMNS) -> "Response":
+        """Read a CSV in the format above; ``ValueError`` names what is wrong.
+
+        Columns not in ``required`` may be absent or all NaN (not measured).
+        """
         path = Path(path)
         if not path.is_file():
             raise ValueError(f"{path}: no such file")
         with path.open() as f:
             header = f.readline().strip()
         cols = [c.strip() for c in header.split(",")]
-        missing = [c for c in CSV_COLUMNS if c not in cols]
+        missing = [c for c in required if c not in cols]
         if missing:
             raise ValueError(f"{path}: missing column(s) {', '.join(missing)} (header: {header!r})")
         try:
@@ -62,13 +70,17 @@ class Response:
             raise ValueError(f"{path}: fewer than 2 samples")
         if data.shape[1] != len(cols):
             raise ValueError(f"{path}: {data.shape[1]} values per row but {len(cols)} columns in the header")
-        ch = {c: data[:, cols.index(c)] for c in CSV_COLUMNS}
-        for c, v in ch.items():
+        nan = np.full(data.shape[0], np.nan)
+        ch = {c: data[:, cols.index(c)] if c in cols else nan.copy() for c in CSV_COLUMNS}
+        load = data[:, cols.index("load")] if "load" in cols else None
+        for c, v in list(ch.items()) + ([("load", load)] if load is not None else []):
             bad = ~np.isfinite(v)
+            if c not in required and bad.all():
+                continue
             if bad.any():
                 raise ValueError(f"{path}: column {c} has {bad.sum()} NaN/inf value(s), first at row {np.argmax(bad) + 2}")
         dt = np.diff(ch["t"])
         if (dt <= 0).any():
             i = int(np.argmax(dt <= 0))
             raise ValueError(f"{path}: time axis not strictly increasing at row {i + 3} (t={ch['t'][i + 1]})")
-        return cls(**ch, meta={"source": str(path)})
+        return cls(**ch, meta={"source": str(path)}, load=load)

@@ -1,7 +1,7 @@
 """Position transducer on the surface (user) side, and the acquisition chain.
 
 Inside the loop (compiled): a pure delay of ``delay_steps`` fine steps (ring
-buffer) and a calibration error, x_meas = (1 + e) x_u + bias; the velocity
+buffer, linear interpolation between steps so the delay is a smooth parameter) and a calibration error, x_meas = (1 + e) x_u + bias; the velocity
 channel is the transducer's rate, v_meas = (1 + e) v_u, delayed alike.
 
 Outside the loop (numpy, seeded): white acquisition noise and quantisation of
@@ -21,16 +21,20 @@ def transducer_step(p, s, dbuf):
     i = int(s[S_DIDX])
     dbuf[i, 0] = s[S_XU]
     dbuf[i, 1] = s[S_VU]
-    j = (i - int(p[P_DELAY])) % n
+    d = p[P_DELAY]
+    m = int(d)
+    a = d - m
+    j0 = (i - m) % n
+    j1 = (i - m - 1) % n
     g = p[P_XGAIN]
-    s[S_XM] = g * dbuf[j, 0] + p[P_XBIAS]
-    s[S_VM] = g * dbuf[j, 1]
+    s[S_XM] = g * ((1.0 - a) * dbuf[j0, 0] + a * dbuf[j1, 0]) + p[P_XBIAS]
+    s[S_VM] = g * ((1.0 - a) * dbuf[j0, 1] + a * dbuf[j1, 1])
     s[S_DIDX] = (i + 1) % n
 
 
 def delay_buffer(p: np.ndarray) -> np.ndarray:
     """Ring buffer (rows: fine steps, cols: position, velocity) for a parameter vector."""
-    return np.zeros((int(p[P_DELAY]) + 1, 2))
+    return np.zeros((int(p[P_DELAY]) + 2, 2))
 
 
 def acquisition(out: np.ndarray, effects, rng: np.random.Generator | None) -> np.ndarray:

@@ -39,7 +39,8 @@ class Graph:
 
     def __init__(self, faults: Faults = Faults(), effects: tuple[str, ...] = (), seed: int = 0, rate: float = 0.0,
                  method: str = "hybrid", fitness: str = "lsq", monitor_seed: int = 0, log_path: str | Path = "",
-                 executor: str = "single", actuator_id: str = "eha", namespace: str = "", truth: bool = True):
+                 executor: str = "single", actuator_id: str = "eha", namespace: str = "", truth: bool = True,
+                 params_file: str = "", discrepancy: bool = False):
         import rclpy
         from rclpy.parameter import Parameter
         from rclpy.signals import SignalHandlerOptions
@@ -56,14 +57,15 @@ class Graph:
             self.plant = PlantNode(context=self.ctx, parameter_overrides=[
                 P("k_gm", value=float(faults.k_gm)), P("k_fsj", value=float(faults.k_fsj)),
                 P("k_bkl", value=float(faults.k_bkl)), P("effects", value=list(effects) or [""]),
-                P("seed", value=int(seed)), P("actuator_id", value=actuator_id)], **ns)
+                P("seed", value=int(seed)), P("actuator_id", value=actuator_id),
+                P("params_file", value=str(params_file))], **ns)
             self.command = CommandNode(context=self.ctx, parameter_overrides=[
                 P("rate", value=float(rate)), P("actuator_id", value=actuator_id)], **ns)
             plant_fqn = self.plant.get_fully_qualified_name()
             self.monitor = MonitorNode(context=self.ctx, parameter_overrides=[
                 P("method", value=method), P("fitness", value=fitness), P("seed", value=int(monitor_seed)),
                 P("log_path", value=str(log_path)), P("plant_node", value=plant_fqn if truth else ""),
-                P("actuator_id", value=actuator_id)], **ns)
+                P("actuator_id", value=actuator_id), P("discrepancy", value=bool(discrepancy))], **ns)
             self.nodes = [self.plant, self.command, self.monitor]
             if executor == "events":
                 from rclpy.experimental import EventsExecutor

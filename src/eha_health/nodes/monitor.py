@@ -57,6 +57,9 @@ class MonitorNode(Node):
             description="after the end mark, wait this long [s] for late samples"))
         self.declare_parameter("diagnostics_period_s", 1.0, d(description="re-publish the status this often [s]"))
         self.declare_parameter("exit_after", 0, d(description="stop after this many windows (0: run on)"))
+        self.declare_parameter("discrepancy", False, d(
+            description="after each diagnosis run the discrepancy loop; a structured residual -> WARN 'model lacks: ...'"))
+        self.declare_parameter("discrepancy_max_effects", 1, d(description="most effects the loop may add"))
 
         self.log = self._open_log()
         self._buf = {c: deque(maxlen=BUFFER) for c in ("command", "position", "velocity", "pressure", "current")}
@@ -183,7 +186,8 @@ class MonitorNode(Node):
         while self._futures and self._futures[0][1].done():
             w, fut = self._futures.popleft()
             try:
-                self._report(w, fut.result(), None)
+                d, rep = fut.result()
+                self._report(w, d, None, rep)
             except Exception as e:   # identification refused the data (ValueError) or failed
                 self._report(w, None, f"{type(e).__name__}: {e}" if not isinstance(e, ValueError) else str(e))
 
@@ -199,7 +203,9 @@ class MonitorNode(Node):
         args = dict(method=self.get_parameter("method").value, fitness=self.get_parameter("fitness").value,
                     seed=int(self.get_parameter("seed").value))
         self.get_logger().info(f"test {w['id']}: {len(r)} samples, diagnosing ({args['method']}) ...")
-        self._futures.append((w, self._worker.submit(diagnose, r, **args)))
+        loop = bool(self.get_parameter("discrepancy").value)
+        n_eff = int(self.get_parameter("discrepancy_max_effects").value)
+        self._futures.append((w, self._worker.submit(_diagnose, r, loop, n_eff, **args)))
 
     def _level(self, k) -> tuple[str, str]:
         warn, err = (float(self.get_parameter(p).value) for p in ("warn_level", "error_level"))
@@ -210,7 +216,7 @@ class MonitorNode(Node):
             return "WARN", f"{worst[1].upper()} = {worst[0]:.3f} >= {warn:g}: degraded"
         return "OK", "healthy"
 
-    def _report(self, w: dict, d, error: str | None) -> None:
+    def _report(self, w: dict, d, error: str | None, rep=None) -> None:
         tid = w["id"]
         entry = {"test_id": tid, "start_ns": w.get("start"), "truth": w.get("truth"), "response": w.get("response"),
                  "diagnosis": d}
@@ -222,6 +228,15 @@ class MonitorNode(Node):
             k = d.faults.as_tuple()
             level, msg = self._level(k)
             values = {"test_id": tid}
+            if rep is not None:
+                values["discrepancy"] = rep.verdict
+                if rep.selected:
+                    lacks = f"{rep.verdict} (position residual RMS {rep.before.rms['position'] * 1e6:.1f} -> " \
+                            f"{rep.after.rms['position'] * 1e6:.1f} um; coefficients re-identified with it: " + \
+                            ", ".join(f"{n.upper()}={rep.after.values[n]:.3f}" for n in NAMES) + ")"
+                    msg = lacks + "; " + msg if level == "OK" else msg + "; " + lacks
+                    level = "WARN" if level == "OK" else level
+                    entry["discrepancy"] = rep
             for n, v in zip(NAMES, k):
                 values[n] = v
                 values[n + "_std"] = d.std[n]
@@ -236,6 +251,9 @@ class MonitorNode(Node):
                 rec = d.as_dict()
                 self.log.add_metadata(f"diagnosis/test_{tid}", {
                     k_: json.dumps(v, default=float) for k_, v in rec.items()})
+                if rep is not None:
+                    self.log.add_metadata(f"discrepancy/test_{tid}", {
+                        k_: json.dumps(v, default=float) for k_, v in rep.as_dict().items()})
         entry.update(level=level, message=msg)
         self.results.append(entry)
         self._status = (level, msg, values)
@@ -281,3 +299,12 @@ def main(args=None) -> int:
 if __name__ == "__main__":
     import sys
     sys.exit(main())
+
+
+def _diagnose(r, loop: bool, max_effects: int, **args):
+    """Worker: the diagnosis, then (optionally) the discrepancy loop started from it."""
+    d = diagnose(r, **args)
+    if not loop:
+        return d, None
+    from eha_health.discrepancy import analyse_fdi_test
+    return d, analyse_fdi_test(r, max_effects=max_effects, diagnosis=d)

@@ -1,0 +1,123 @@
+"""Library of candidate effects the monitor model may lack.
+
+Each :class:`Candidate` is one physical mechanism with its own parameters
+(:class:`augment.Knob`), applied to the monitor's :class:`ModelParams`. A knob at
+its ``off`` value leaves the model unchanged, so a candidate's signature is the
+change of the outputs when its knobs move from ``off``. The library is defined
+on the monitor's physics, not on the plant's effect switches: several entries
+(supply sag, extra viscous friction, null bias, load stiffness, leakage, mount
+compliance) are not switches of the plant at all.
+
+=====================  =================================================  ============
+candidate              mechanism (knob)                                   unit
+=====================  =================================================  ============
+compressibility        oil + hose compliance 1/beta; P12 becomes a state  1/GPa
+sensor_delay           transport delay of the position transducer         s
+sensor_bias            offset of the position reading                     m
+sensor_gain            relative gain error of the position reading        -
+supply_pressure        supply sag d: P_s -> P_r + (P_s-P_r)(1-d)           -
+viscous_friction       extra jack viscous friction                        N s/m
+stribeck               Stribeck velocity of the dry friction              m/s
+valve_null_bias        servovalve null-bias current                       A
+load_stiffness         change of the hinge (load) stiffness               N/m
+leakage                extra internal (cross-piston) leakage              m^3/(s Pa)
+mount_compliance       compliance in series with the link (soft mount)    m/N
+=====================  =================================================  ============
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .augment import Knob
+from .params import ModelParams
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A missing-effect hypothesis: a mechanism and the knobs that size it."""
+    name: str
+    mechanism: str
+    knobs: tuple[Knob, ...]
+
+
+def _compressibility(p: ModelParams, compliance: float) -> ModelParams:
+    if compliance <= 0.0:
+        return p.with_effects(compressibility={"enabled": False})
+    return p.with_effects(compressibility={"enabled": True, "bulk_modulus": 1e9 / compliance})
+
+
+def _delay(p: ModelParams, d: float) -> ModelParams:
+    return p.with_effects(sensor_delay={"enabled": d > 0.0, "delay": max(d, 0.0)})
+
+
+def _calibration(p: ModelParams, bias: float | None = None, gain: float | None = None) -> ModelParams:
+    cur = p.effects.sensor_calibration
+    b = cur.bias if bias is None else bias
+    g = cur.gain_error if gain is None else gain
+    return p.with_effects(sensor_calibration={"enabled": True, "bias": b, "gain_error": g})
+
+
+def _supply(p: ModelParams, d: float) -> ModelParams:
+    # the fluid block is linearised about null (K_q, G_P fixed), so the sag acts through
+    # the pressure limit: stall force and the flow-saturated speed under load
+    h = p.hydraulics
+    return p.updated("hydraulics", supply_pressure=h.return_pressure + (h.supply_pressure - h.return_pressure) * (1 - d))
+
+
+def _stribeck(p: ModelParams, v: float) -> ModelParams:
+    if v <= 0.0:
+        return p.with_effects(stribeck={"enabled": False})
+    return p.with_effects(stribeck={"enabled": True, "velocity": v})
+
+
+def _mount(p: ModelParams, c: float) -> ModelParams:
+    return p.updated("linkage", stiffness=1.0 / (1.0 / p.linkage.stiffness + max(c, 0.0)))
+
+
+CANDIDATES: tuple[Candidate, ...] = (
+    Candidate("compressibility", "oil and hose compliance: the chamber pressure lags the flow, "
+              "a hydraulic spring against the jack mass",
+              (Knob("oil_compliance", "1/GPa", 0.05, 20.0, 1.0, 0.0, _compressibility,
+                    doc="1/bulk modulus [1/GPa]; 1 = 1 GPa"),)),
+    Candidate("sensor_delay", "transport delay of the position transducer inside the loop",
+              (Knob("delay", "s", 0.0, 0.02, 1e-3, 0.0, _delay, doc="position/velocity delay"),)),
+    Candidate("sensor_bias", "offset of the position reading (the loop holds the surface off by it)",
+              (Knob("bias", "m", -2e-3, 2e-3, 1e-4, 0.0, lambda p, v: _calibration(p, bias=v),
+                    doc="reading = x + bias"),)),
+    Candidate("sensor_gain", "gain error of the position reading",
+              (Knob("gain_error", "-", -0.3, 0.3, 0.02, 0.0, lambda p, v: _calibration(p, gain=v),
+                    doc="reading = (1 + e) x"),)),
+    Candidate("supply_pressure", "supply pressure sag: less stall force and less flow per spool stroke",
+              (Knob("sag", "-", 0.0, 0.8, 0.2, 0.0, _supply, doc="fractional drop of P_s - P_r"),)),
+    Candidate("viscous_friction", "extra viscous friction on the jack (seal drag, cold oil)",
+              (Knob("extra_viscous", "N s/m", -2000.0, 3e4, 3000.0, 0.0,
+                    lambda p, v: p.updated("jack", viscous=max(p.jack.viscous + v, 0.0)),
+                    doc="added to jack.viscous"),)),
+    Candidate("stribeck", "velocity-dependent dry friction: F = F_d + (F_s - F_d) exp(-(v/v_s)^2)",
+              (Knob("v_stribeck", "m/s", 1e-4, 0.1, 5e-3, 0.0, _stribeck, doc="Stribeck velocity"),)),
+    Candidate("valve_null_bias", "servovalve null bias: a constant current offset the loop must cancel",
+              (Knob("null_bias", "A", -2e-3, 2e-3, 2e-4, 0.0,
+                    lambda p, v: p.updated("controller", null_bias=v), doc="current added at the valve"),)),
+    Candidate("load_stiffness", "change of the elastic load (hinge moment) stiffness",
+              (Knob("extra_stiffness", "N/m", -8e4, 1e6, 4e4, 0.0,
+                    lambda p, v: p.updated("surface", hinge_stiffness=max(p.surface.hinge_stiffness + v, 0.0)),
+                    doc="added to surface.hinge_stiffness"),)),
+    Candidate("leakage", "extra internal leakage across the piston (worn seal, bypass)",
+              (Knob("extra_leakage", "m^3/(s Pa)", 0.0, 1e-10, 5e-12, 0.0,
+                    lambda p, v: p.updated("hydraulics", leakage=max(p.hydraulics.leakage + v, 0.0)),
+                    doc="added to hydraulics.leakage"),)),
+    Candidate("mount_compliance", "compliant mount or attachment in series with the jack-to-surface link",
+              (Knob("mount_compliance", "m/N", 0.0, 2e-6, 1e-7, 0.0, _mount, doc="series compliance"),)),
+)
+
+BY_NAME = {c.name: c for c in CANDIDATES}
+
+
+def select(names) -> tuple[Candidate, ...]:
+    """Candidates by name (``ValueError`` naming an unknown one)."""
+    out = []
+    for n in names:
+        if n not in BY_NAME:
+            raise ValueError(f"unknown candidate effect {n!r}; known: {', '.join(BY_NAME)}")
+        out.append(BY_NAME[n])
+    return tuple(out)
