@@ -234,3 +234,16 @@ def test_real_rig_import_and_loop(tmp_path):
     # it predicts the held-out (unseen, higher-frequency) 30 % to well under the 1.4 mm command RMS
     assert b["rms_held_out"]["position"] < 1e-4
     assert out["after"]["rms_held_out"]["position"] <= b["rms_held_out"]["position"] * 1.0001
+
+
+# ----------------------------------------------------------------------------- monitor node
+def test_monitor_node_warns_what_the_model_lacks(tmp_path):
+    from eha_health.mcaplog import read_bag
+    from eha_health.nodes.graph import Graph
+    log = tmp_path / "m.mcap"
+    with Graph(faults=Faults(0.0, 0.0, 0.0), effects=("sensor_delay",), log_path=log, discrepancy=True) as g:
+        r = g.run_test()
+    assert r["level"] == "WARN" and "model lacks: sensor_delay" in r["message"]
+    assert r["discrepancy"].after.rms["position"] < r["discrepancy"].before.rms["position"] / 3
+    meta = read_bag(log, topics=[]).metadata
+    assert json.loads(meta["discrepancy/test_1"]["selected"]) == ["sensor_delay"]
