@@ -63,7 +63,6 @@ def _noisy_run(params, faults, seed):
 
 @pytest.mark.parametrize("name,plant,faults,knob,value", [
     ("sensor_delay", lambda p: p.with_effect_names(["sensor_delay"]), Faults(0.3, 0.4, 0.2), "delay", 1e-3),
-    ("viscous_friction", lambda p: p.updated("jack", viscous=6000.0), Faults(0.0, 0.5, 0.0), "extra_viscous", 3000.0),
     ("load_stiffness", lambda p: p.updated("surface", hinge_stiffness=1.6e5), Faults(0.5, 0.0, 0.3),
      "extra_stiffness", 8e4),
 ])
