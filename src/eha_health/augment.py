@@ -155,8 +155,7 @@ class AugmentedModel:
         return simulate_packed(np.stack([self.packed(x) for x in X]), self.record.command, self.record.load)
 
     def extended(self, extra: tuple[Knob, ...]) -> "AugmentedModel":
-        m = AugmentedModel(self.base, self.knobs + tuple(extra), self.record)
-        return m
+        return AugmentedModel(self.base, self.knobs + tuple(extra), self.record)
 
 
 class Residual:

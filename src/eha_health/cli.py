@@ -149,8 +149,8 @@ def cmd_bench(args) -> int:
     return 0
 
 
-def _load_run(path: Path, test_id: int | None):
-    """(response, truth or None, notes) from a CSV or an MCAP bag."""
+def _load_run(path: Path, test_id: int | None, required: tuple[str, ...] | None = None):
+    """(response, truth or None, notes) from a CSV (columns ``required``, default all) or an MCAP bag."""
     from .response import Response
     if path.suffix.lower() == ".mcap":
         from .bagrun import read_run, truth_values
@@ -158,7 +158,7 @@ def _load_run(path: Path, test_id: int | None):
         return run.response, truth_values(run.truth), run.notes
     if test_id is not None:
         raise UsageError("--test applies to MCAP bags only")
-    return Response.from_csv(path), None, []
+    return (Response.from_csv(path, required) if required else Response.from_csv(path)), None, []
 
 
 def cmd_diagnose(args) -> int:
@@ -305,16 +305,10 @@ def _discrepancy_mode(r) -> str:
 
 def cmd_discrepancy(args) -> int:
     from .discrepancy import analyse_fdi_test, format_report
-    from .response import Response
     path = Path(args.run)
     if args.max_effects < 0:
         raise UsageError(f"--max-effects must be >= 0, got {args.max_effects}")
-    if path.suffix.lower() == ".mcap":
-        r, truth, notes = _load_run(path, args.test)
-    else:
-        if args.test is not None:
-            raise UsageError("--test applies to MCAP bags only")
-        r, truth, notes = Response.from_csv(path, required=("t", "command", "position")), None, []
+    r, truth, notes = _load_run(path, args.test, required=("t", "command", "position"))
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
     mode = _discrepancy_mode(r) if args.mode == "auto" else args.mode

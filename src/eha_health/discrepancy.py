@@ -44,7 +44,7 @@ from .candidates import CANDIDATES, Candidate
 from .fitness import CHANNEL_COLUMNS
 from .identify import _autocorr_inflation
 from .params import ModelParams, load
-from .residuals import ResidualAnalysis, analyse
+from .residuals import DISPLAY_UNITS, ResidualAnalysis, analyse
 
 
 @dataclass(frozen=True)
@@ -155,9 +155,9 @@ def _channels(record: Record, out: np.ndarray) -> dict[str, np.ndarray]:
     return {c: out[:, CHANNEL_COLUMNS[c]].copy() for c in record.channels}
 
 
-def _state(model: AugmentedModel, f: Fit, r_all: Residual, held: Residual, x_held: np.ndarray,
+def _state(f: Fit, r_all: Residual, held: Residual, out_held: np.ndarray,
            effects: list[str], inflation: float, truth: dict | None) -> State:
-    out_held = model.run(x_held)[0]
+    """``out_held``: the output of the model fitted on the fit part (its held-out prediction)."""
     values = f.values()
     errors = None
     if truth:
@@ -264,7 +264,8 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     base = fit(model, r_fit, before.x)
     res_before = analyse(record.t, record.channels, _channels(record, before.output), segments, settings.floor)
     infl = _autocorr_inflation(before.residual, len(r_final.channels))
-    state_before = _state(model, before, r_all, r_held, base.x, [], infl, truth)
+    out_base = base.output      # the fit-part model over the whole record
+    state_before = _state(before, r_all, r_held, out_base, [], infl, truth)
     say(f"residual: {res_before.verdict}")
 
     evidence: list[CandidateEvidence] = []
@@ -275,8 +276,8 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
         if not remaining:
             break
         anchors = [base.x] if rnd > 1 else [base.x, before.x]
-        rss_held_base = r_held.rss(model.run(base.x)[0])
-        r_held_base = r_held(model.run(base.x)[0])
+        r_held_base = r_held(out_base)
+        rss_held_base = float(r_held_base @ r_held_base)
         n_eff = _n_eff(r_held, r_held_base)
         n_fit = _n_eff(r_fit, base.residual)
         results = []
@@ -293,7 +294,7 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
             break
         ev.selected = True
         selected.append(ev.name)
-        model, base = mc, best
+        model, base, out_base = mc, best, best.output
         runs -= model.runs       # counted above; the model goes on counting from here
         remaining = [c for c in remaining if c.name != ev.name]
         res = analyse(record.t, record.channels, _channels(record, best.output), segments, settings.floor)
@@ -304,7 +305,7 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     res_after = analyse(record.t, record.channels, _channels(record, after.output), segments, settings.floor) \
         if selected else res_before
     infl = _autocorr_inflation(after.residual, len(r_final.channels))
-    state_after = _state(model, after, r_all, r_held, base.x, selected, infl, truth)
+    state_after = _state(after, r_all, r_held, out_base, selected, infl, truth)
     verdict = ("model lacks: " + ", ".join(selected)) if selected else "no significant missing effect"
     return DiscrepancyReport(
         before=state_before, after=state_after, candidates=evidence, selected=selected, verdict=verdict,
@@ -339,9 +340,6 @@ def analyse_fdi_test(response, max_effects: int = 2, seed: int = 0, params: Mode
                     "all", progress)
 
 
-_UNIT_SCALE = {"position": (1e6, "um"), "velocity": (1e3, "mm/s"), "pressure": (1e-3, "kPa"), "current": (1e6, "uA")}
-
-
 def format_report(rep: DiscrepancyReport, what: str = "") -> str:
     """Readable summary: verdict, before/after per channel and coefficients, ranked candidates."""
     lines = [f"discrepancy analysis{' of ' + what if what else ''}: {rep.verdict}",
@@ -349,7 +347,7 @@ def format_report(rep: DiscrepancyReport, what: str = "") -> str:
     lines += [f"    {e}" for e in rep.residual_before.evidence[:4]]
     lines.append(f"  {'channel':9s} {'RMS before':>14s} {'RMS after':>14s} {'held-out before':>16s} {'held-out after':>15s}")
     for c in rep.before.rms:
-        k, u = _UNIT_SCALE[c]
+        k, u = DISPLAY_UNITS[c]
         lines.append(f"  {c:9s} {rep.before.rms[c] * k:10.4g} {u:3s} {rep.after.rms[c] * k:10.4g} {u:3s} "
                      f"{rep.before.rms_held_out[c] * k:12.4g} {u:3s} {rep.after.rms_held_out[c] * k:11.4g} {u:3s}")
     lines.append(f"  fitness (weighted residual power): before {rep.before.fitness:.4g}, after {rep.after.fitness:.4g}")

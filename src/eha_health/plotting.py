@@ -112,15 +112,13 @@ def plot_diagnosis(measured: Response, diagnosis, path: str | Path):
     plt.close(fig)
 
 
-_SCALE = {"position": (1e6, "um"), "velocity": (1e3, "mm/s"), "pressure": (1e-3, "kPa"), "current": (1e6, "uA")}
-
-
 def plot_discrepancy(rep, path: str | Path):
     """Residual (fitted - measured) per channel before and after augmentation, and the ranking."""
+    from .residuals import DISPLAY_UNITS
     chans = list(rep.measured)
     fig, axes = plt.subplots(len(chans) + 1, 1, figsize=(10, 2.3 * (len(chans) + 1) + 0.5))
     for ax, c in zip(axes, chans):
-        k, unit = _SCALE[c]
+        k, unit = DISPLAY_UNITS[c]
         ax.plot(rep.t, (rep.fitted_before[c] - rep.measured[c]) * k, lw=0.7,
                 label=f"before: RMS {rep.before.rms[c] * k:.3g} {unit}")
         ax.plot(rep.t, (rep.fitted_after[c] - rep.measured[c]) * k, lw=0.7,
