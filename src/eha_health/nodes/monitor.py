@@ -38,6 +38,15 @@ from . import msg_class, qos, run_node
 BUFFER = 60_000
 
 
+def _diagnose(r, loop: bool, max_effects: int, **args):
+    """Worker: the diagnosis, then (optionally) the discrepancy loop started from it."""
+    d = diagnose(r, **args)
+    if not loop:
+        return d, None
+    from ..discrepancy import analyse_fdi_test
+    return d, analyse_fdi_test(r, max_effects=max_effects, diagnosis=d)
+
+
 class MonitorNode(Node):
     def __init__(self, name: str = "eha_monitor", **kw):
         super().__init__(name, **kw)
@@ -300,11 +309,3 @@ if __name__ == "__main__":
     import sys
     sys.exit(main())
 
-
-def _diagnose(r, loop: bool, max_effects: int, **args):
-    """Worker: the diagnosis, then (optionally) the discrepancy loop started from it."""
-    d = diagnose(r, **args)
-    if not loop:
-        return d, None
-    from eha_health.discrepancy import analyse_fdi_test
-    return d, analyse_fdi_test(r, max_effects=max_effects, diagnosis=d)
