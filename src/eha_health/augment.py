@@ -236,26 +236,28 @@ def fit(model: AugmentedModel, residual: Residual, x0, free=None, max_nfev: int 
         x[free] = z
         return x
 
+    scale = np.array([abs(model.knobs[i].typical) for i in free])
+
     def batch(z):
-        key = tuple(np.round(z, 14))
+        # keyed relative to each knob's magnitude (a leakage of 5e-12 must not round to 0)
+        key = tuple(np.round(np.asarray(z) / scale, 12))
         if key not in cache:
             cache.clear()
             X, steps = _fd_rows(model, full(z), free)
             outs = model.run(X)
-            r0 = residual(outs[0])
-            J = np.column_stack([(residual(outs[j + 1]) - r0) / steps[j] for j in range(len(free))])
-            cache[key] = (r0, J, outs[0])
+            # a model that blows up somewhere in the bounds must read as a bad point, not NaN
+            rs = [np.nan_to_num(residual(o), nan=1e6, posinf=1e6, neginf=-1e6) for o in outs]
+            J = np.column_stack([(rs[j + 1] - rs[0]) / steps[j] for j in range(len(free))])
+            cache[key] = (rs[0], J, outs[0])
         return cache[key]
 
     if len(free):
-        scale = np.array([abs(model.knobs[i].typical) for i in free])
+        start = batch(x0[free])
         sol = least_squares(lambda z: batch(z)[0], x0[free], jac=lambda z: batch(z)[1],
                             bounds=(model.lower[free], model.upper[free]), method="trf", x_scale=scale,
                             xtol=1e-8, ftol=1e-10, gtol=1e-10, max_nfev=max_nfev)
         r0, J, out = batch(sol.x)
         x = full(sol.x)
-    else:
-        x = x0
-        out = model.run(x0)[0]
-        r0, J = residual(out), np.zeros((residual.n * len(residual.channels), 0))
+        if float(r0 @ r0) > float(start[0] @ start[0]):   # never hand back worse than the start
+            (r0, J, out), x = start, x0.copy()
     return Fit(x, model.names, free, float(r0 @ r0), J, r0, out, model.runs - runs0)

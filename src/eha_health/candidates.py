@@ -22,6 +22,7 @@ valve_null_bias        servovalve null-bias current                       A
 load_stiffness         change of the hinge (load) stiffness               N/m
 leakage                extra internal (cross-piston) leakage              m^3/(s Pa)
 mount_compliance       compliance in series with the link (soft mount)    m/N
+flow_asymmetry         extend/retract gain asymmetry of valve and jack    -
 =====================  =================================================  ============
 """
 from __future__ import annotations
@@ -58,9 +59,17 @@ def _calibration(p: ModelParams, bias: float | None = None, gain: float | None =
 
 
 def _supply(p: ModelParams, d: float) -> ModelParams:
-    # the fluid block is linearised about null (K_q, G_P fixed), so the sag acts through
-    # the pressure limit: stall force and the flow-saturated speed under load
-    h = p.hydraulics
+    """Supply sag d: P_s - P_r -> (P_s - P_r)(1 - d).
+
+    Orifice flows go as sqrt(pressure drop): the pilot flow that moves the spool falls by
+    sqrt(1 - d) (slower spool, lower rate limit); the fluid block is linearised about null
+    (K_q, G_P fixed), so on the power stage the sag acts through the pressure limit (stall
+    force and the flow-saturated speed under load).
+    """
+    h, fs = p.hydraulics, p.first_stage
+    r = max(1.0 - d, 1e-3) ** 0.5
+    p = p.updated("first_stage", spool_time_constant=fs.spool_time_constant / r,
+                  spool_rate_limit=fs.spool_rate_limit * r)
     return p.updated("hydraulics", supply_pressure=h.return_pressure + (h.supply_pressure - h.return_pressure) * (1 - d))
 
 
@@ -108,6 +117,11 @@ CANDIDATES: tuple[Candidate, ...] = (
                     doc="added to hydraulics.leakage"),)),
     Candidate("mount_compliance", "compliant mount or attachment in series with the jack-to-surface link",
               (Knob("mount_compliance", "m/N", 0.0, 2e-6, 1e-7, 0.0, _mount, doc="series compliance"),)),
+    Candidate("flow_asymmetry", "unequal extend/retract gains (metering edges, single-rod piston): "
+              "the jack drifts to one side under alternating motion",
+              (Knob("asymmetry", "-", -0.5, 0.5, 0.05, 0.0,
+                    lambda p, v: p.updated("hydraulics", flow_asymmetry=v),
+                    doc="block sees x_s (1 + a sign x_s)"),)),
 )
 
 BY_NAME = {c.name: c for c in CANDIDATES}

@@ -110,15 +110,17 @@ def cmd_bench(args) -> int:
         print(json.dumps(res, indent=2) if args.json else format_graph(res))
         return 0
     if args.what == "floor":
-        from .discbench import floor_yaml, residual_floor
+        from .discbench import effect_floor, floor_yaml, residual_floor
         from .discrepancy import Settings
-        res = residual_floor(n=args.random or 12, seed=args.seed or 2024,
-                             progress=None if (args.json or args.quiet) else _progress_line)
+        prog = None if (args.json or args.quiet) else _progress_line
+        res = residual_floor(n=args.random or 12, seed=args.seed or 2024, progress=prog)
+        eff = effect_floor(seed=(args.seed or 2024) + 1, progress=prog)
         if args.write:
             st = Settings()
             Path(args.write).write_text(floor_yaml(res, "eha-health " + " ".join(args.raw),
-                                                   {"held_out_ratio": st.held_out_ratio, "fit_ratio": st.fit_ratio}))
-        print(json.dumps(res, indent=2))
+                                                   {"held_out_ratio": st.held_out_ratio, "fit_ratio": st.fit_ratio},
+                                                   eff))
+        print(json.dumps({**res, "effects": eff}, indent=2))
         return 0
     if args.what == "discrepancy":
         from .discbench import format_synthetic, synthetic

@@ -51,12 +51,22 @@ from .residuals import DISPLAY_UNITS, ResidualAnalysis, analyse
 class Settings:
     """Decision thresholds of the loop (``data/discrepancy.yaml`` says how they were set)."""
     fit_fraction: float = 0.7          # share of the samples fitted; the rest is held out
-    held_out_ratio: float = 0.5        # selected only if RSS_held(aug)/RSS_held(base) <= this
+    held_out_ratio: float = 0.5        # selected only if the held-out residual power above noise and
+                                       # floor, with / without the effect, is <= this
     fit_ratio: float = 0.8             # ... and RSS_fit(aug)/RSS_fit(base) <= this
     grid: int = 48                     # grid points of a candidate's knob before the local fit
     starts: int = 3                    # local fits per candidate, from the best distinct grid points
     max_nfev: int = 30                 # iterations of each local fit
     floor: dict = field(default_factory=dict)   # per-channel residual floor of the model [SI]
+    effect_floor: dict = field(default_factory=dict)  # {candidate: per-channel floor} once it is added
+
+    def floor_with(self, effects) -> dict[str, float]:
+        """Per-channel floor [SI] of the model holding ``effects``: its largest known model-form error."""
+        out = dict(self.floor)
+        for e in effects:
+            for c, v in self.effect_floor.get(e, {}).items():
+                out[c] = max(out.get(c, 0.0), v)
+        return out
 
 
 @functools.lru_cache(maxsize=None)
@@ -68,8 +78,10 @@ def fdi_settings(path: str | Path | None = None) -> Settings:
     """Settings for FDI tests of the shipped monitor: thresholds and the model's residual floor."""
     data = yaml.safe_load(Path(path).read_text()) if path else _packaged_settings()
     fl = {k: float(v) for k, v in (data.get("floor") or {}).items()}
+    ef = {e: {k: float(v) for k, v in (chans or {}).items()} for e, chans in (data.get("effect_floor") or {}).items()}
     th = data.get("thresholds") or {}
-    return Settings(**{k: float(v) for k, v in th.items() if k in ("held_out_ratio", "fit_ratio")}, floor=fl)
+    return Settings(**{k: float(v) for k, v in th.items() if k in ("held_out_ratio", "fit_ratio")}, floor=fl,
+                    effect_floor=ef)
 
 
 @dataclass
@@ -81,6 +93,7 @@ class CandidateEvidence:
     projection: float             # share of the fit residual its signature explains (0..1)
     fit_ratio: float              # RSS on the fit part, with / without it
     held_out_ratio: float         # RSS on the held-out part, with / without it
+    held_out_excess_ratio: float  # the same for the power above the noise and floor (the gate)
     delta_ic: float               # information criterion change on the held-out part (< 0: better)
     parameters: dict[str, float]
     std: dict[str, float]
@@ -167,7 +180,8 @@ def _state(f: Fit, r_all: Residual, held: Residual, out_held: np.ndarray,
 
 
 def _evaluate(model: AugmentedModel, cand: Candidate, base: Fit, anchors: list[np.ndarray], r_fit: Residual,
-              r_held: Residual, rss_held_base: float, n_eff: float, n_fit: float, settings: Settings, rnd: int):
+              r_held: Residual, rss_held_base: float, rss_held_noise: float, n_eff: float, n_fit: float,
+              settings: Settings, rnd: int):
     """Attribution evidence of one candidate against the current base fit."""
     mc = model.extended(cand.knobs)
     nb = len(base.x)
@@ -199,13 +213,17 @@ def _evaluate(model: AugmentedModel, cand: Candidate, base: Fit, anchors: list[n
     best = min((fit(mc, r_fit, s0, max_nfev=settings.max_nfev) for s0 in starts), key=lambda f: f.rss)
     rss_held = r_held.rss(mc.run(best.x)[0])
     ratio_h = rss_held / rss_held_base if rss_held_base > 0 else 1.0
+    # what is above noise and floor on the held-out part: where the base is already there, the
+    # effect must keep it there (ratio 0), else it must remove a share of the excess
+    excess = max(rss_held - rss_held_noise, 0.0) / max(rss_held_base - rss_held_noise, 1e-3 * rss_held_base, 1e-300)
     k = len(cand.knobs)
     dic = n_eff * float(np.log(max(ratio_h, 1e-300))) + k * float(np.log(n_fit))
     infl = _autocorr_inflation(best.residual, len(r_fit.channels))
     sd = best.std(infl)
     ev = CandidateEvidence(
         name=cand.name, mechanism=cand.mechanism, round=rnd, projection=share,
-        fit_ratio=best.rss / base.rss if base.rss > 0 else 1.0, held_out_ratio=ratio_h, delta_ic=dic,
+        fit_ratio=best.rss / base.rss if base.rss > 0 else 1.0, held_out_ratio=ratio_h,
+        held_out_excess_ratio=excess, delta_ic=dic,
         parameters={kn.name: float(best.x[nb + j]) for j, kn in enumerate(cand.knobs)},
         std={kn.name: sd.get(kn.name, float("nan")) for kn in cand.knobs},
         units={kn.name: kn.unit for kn in cand.knobs})
@@ -268,12 +286,21 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     state_before = _state(before, r_all, r_held, out_base, [], infl, truth)
     say(f"residual: {res_before.verdict}")
 
+
+    def held_noise(effects) -> float:
+        """Held-out residual power that noise and the floor of the model holding ``effects`` leave."""
+        floor = settings.floor_with(effects)
+        return float(sum(r_held.w[i] ** 2 * r_held.n * (res_before.channels[c].noise_sd ** 2 + floor.get(c, 0.0) ** 2)
+                         for i, c in enumerate(r_held.channels)))
+
     evidence: list[CandidateEvidence] = []
     selected: list[str] = []
     structured = res_before.structured
     remaining = list(candidates)
     for rnd in range(1, max_effects + 1):
-        if not remaining:
+        # round 1 always ranks the candidates (the evidence is reported either way); a later round
+        # only runs while the residual is still above the floor of the model as it now stands
+        if not remaining or (rnd > 1 and not structured):
             break
         anchors = [base.x] if rnd > 1 else [base.x, before.x]
         r_held_base = r_held(out_base)
@@ -283,12 +310,16 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
         results = []
         for i, cand in enumerate(remaining):
             say(f"round {rnd}: candidate {i + 1}/{len(remaining)} {cand.name}")
-            results.append(_evaluate(model, cand, base, anchors, r_fit, r_held, rss_held_base, n_eff, n_fit, settings, rnd))
+            results.append(_evaluate(model, cand, base, anchors, r_fit, r_held, rss_held_base,
+                                     held_noise(selected + [cand.name]), n_eff, n_fit, settings, rnd))
             runs += results[-1][1].runs
-        results.sort(key=lambda e: e[0].delta_ic)
+        # the two kinds of evidence must agree: a refit that does not even lower the residual on
+        # the data it was fitted to (fit ratio >= 1: no better than the effect switched off) cannot
+        # claim the held-out gain, which is then luck of a coloured residual; such candidates rank last
+        results.sort(key=lambda e: (e[0].fit_ratio >= 1.0, e[0].delta_ic))
         evidence += [e for e, _, _ in results]
         ev, mc, best = results[0]
-        ok = (structured and ev.delta_ic < 0 and ev.held_out_ratio <= settings.held_out_ratio
+        ok = (structured and ev.delta_ic < 0 and ev.held_out_excess_ratio <= settings.held_out_ratio
               and ev.fit_ratio <= settings.fit_ratio)
         if not ok:
             break
@@ -297,12 +328,14 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
         model, base, out_base = mc, best, best.output
         runs -= model.runs       # counted above; the model goes on counting from here
         remaining = [c for c in remaining if c.name != ev.name]
-        res = analyse(record.t, record.channels, _channels(record, best.output), segments, settings.floor)
+        res = analyse(record.t, record.channels, _channels(record, best.output), segments,
+                      settings.floor_with(selected))
         structured = res.structured
         say(f"selected {ev.name}; residual now {res.verdict}")
 
     after = fit(model, r_final, base.x) if selected else before
-    res_after = analyse(record.t, record.channels, _channels(record, after.output), segments, settings.floor) \
+    res_after = analyse(record.t, record.channels, _channels(record, after.output), segments,
+                        settings.floor_with(selected)) \
         if selected else res_before
     infl = _autocorr_inflation(after.residual, len(r_final.channels))
     state_after = _state(after, r_all, r_held, out_base, selected, infl, truth)
@@ -359,12 +392,13 @@ def format_report(rep: DiscrepancyReport, what: str = "") -> str:
         if rep.before.errors and name in rep.before.errors:
             row += f" {rep.before.errors[name]:11.4f} {rep.after.errors[name]:10.4f}"
         lines.append(row)
-    lines.append("  candidates (ranked by the held-out information criterion dIC; projection = share of the "
-                 "fit residual its signature explains):")
+    lines.append("  candidates (ranked by the held-out information criterion dIC; excess = held-out power above "
+                 "noise and floor; projection = share of the fit residual its signature explains):")
     for c in rep.candidates:
         pars = ", ".join(f"{k}={v:.4g}+/-{c.std[k]:.2g} {c.units[k]}" for k, v in c.parameters.items())
         mark = " <- selected" if c.selected else ""
-        lines.append(f"   r{c.round} {c.name:17s} dIC {c.delta_ic:9.1f}  held-out x{c.held_out_ratio:6.3f}  "
-                     f"fit x{c.fit_ratio:6.3f}  projection {c.projection:5.2f}  {pars}{mark}")
+        lines.append(f"   r{c.round} {c.name:17s} dIC {c.delta_ic:9.1f}  held-out x{c.held_out_ratio:6.3f} "
+                     f"(excess x{min(c.held_out_excess_ratio, 99.0):6.3f})  fit x{c.fit_ratio:6.3f}  "
+                     f"projection {c.projection:5.2f}  {pars}{mark}")
     lines.append(f"  {rep.runs} model runs in {rep.wall_time_s:.1f} s")
     return "\n".join(lines)

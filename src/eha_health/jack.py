@@ -7,18 +7,23 @@ block, P12 = P0(x_s) - R_q A x_j', whose R_q A^2 term is a very stiff damper:
 it is integrated implicitly. With compressibility P12 is a state:
 
     dP12/dt = (2 beta / V0) (K_q x_s - (K_q/G_P + C_l) P12 - A x_j')
+
+An asymmetric valve or jack (unequal metering edges, single-rod piston) is
+lumped as the block seeing x_s (1 + a sign x_s), a = hydraulics.flow_asymmetry.
 """
 from numba import njit
 
 from .friction import stick_slip_velocity
-from .layout import (P_AREA, P_BETA, P_COMP, P_CV, P_FD, P_FS, P_MJ, P_PR, P_PS, P_STRIB, P_V0,
-                     P_VSTRIB, P_XMAX, S_P12, S_VJ, S_XJ)
+from .layout import (P_AREA, P_BETA, P_COMP, P_CV, P_FASYM, P_FD, P_FS, P_MJ, P_PR, P_PS, P_STRIB,
+                     P_V0, P_VSTRIB, P_XMAX, S_P12, S_VJ, S_XJ)
 from .servovalve import chamber_pressure_step, load_pressure_law
 
 
 @njit(cache=True, error_model="numpy")
 def jack_step(p, s, xs, f_ext, dt):
     """Advance jack velocity, position and P12 one step given the spool position."""
+    # unequal metering edges (or piston areas): extend and retract see different gains
+    xs = xs * (1.0 + p[P_FASYM]) if xs > 0.0 else xs * (1.0 - p[P_FASYM])
     area = p[P_AREA]
     p_max = p[P_PS] - p[P_PR]
     v_old = s[S_VJ]

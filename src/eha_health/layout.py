@@ -34,6 +34,8 @@ P_NAMES = (
     "vs_max",
     # surface hinge-bearing friction
     "f_hinge",
+    # extend/retract flow-gain asymmetry of the valve-jack fluid block
+    "flow_asym",
 )
 
 # --- parameter indices (keep in the order of P_NAMES) ---
@@ -50,6 +52,7 @@ P_COMP, P_BETA, P_V0, P_DELAY, P_XBIAS, P_XGAIN = range(48, 54)
 P_STRIB, P_VSTRIB = 54, 55
 P_VSMAX = 56
 P_FHINGE = 57
+P_FASYM = 58
 N_P = len(P_NAMES)
 
 MODEL_REFERENCE = 0.0

@@ -109,6 +109,8 @@ class Hydraulics:
     flow_gain: float = _pos("m^2/s", "flow per unit spool displacement K_q")
     pressure_gain: float = _pos("Pa/m", "blocked-load pressure per unit spool displacement G_P")
     leakage: float = _nonneg("m^3/(s Pa)", "piston-seal leakage coefficient C_l")
+    flow_asymmetry: float = _f("-", "extend/retract gain asymmetry a: the block sees x_s (1 + a sign x_s) "
+                               "(unequal metering edges or piston areas)", lo=-0.9, hi=0.9)
 
 
 @dataclass(frozen=True)
@@ -470,6 +472,7 @@ def pack(params: ModelParams, faults: Faults = Faults()) -> np.ndarray:
     p[L.P_KSV], p[L.P_VSMAX] = eff["k_sv"], fs2.spool_rate_limit
     p[L.P_XSMAX], p[L.P_PS], p[L.P_PR] = h.spool_stroke, h.supply_pressure, h.return_pressure
     p[L.P_KQ], p[L.P_GP], p[L.P_CL] = h.flow_gain, h.pressure_gain, h.leakage
+    p[L.P_FASYM] = h.flow_asymmetry
     p[L.P_AREA], p[L.P_MJ], p[L.P_CV] = j.area, j.mass, j.viscous
     p[L.P_FS], p[L.P_FD], p[L.P_XMAX] = eff["f_s"], eff["f_d"], j.stroke
     p[L.P_KLINK], p[L.P_CLINK], p[L.P_BKL] = lk.stiffness, lk.damping, eff["backlash"]
