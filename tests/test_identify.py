@@ -130,14 +130,30 @@ def test_cli_diagnose_bad_options(tmp_path, combined):
     assert p.returncode == 2 and "seed" in p.stderr
 
 
-def test_error_bars_add_the_measured_model_form_error(combined):
-    from eha_health.identify import NAMES, model_error
+def test_error_bars_add_the_measured_model_form_and_noise_error(combined):
+    from eha_health.identify import NAMES, model_error, noise_error
+    from eha_health.residuals import noise_level
     d = diagnose(combined)
     me = model_error()
+    ne = noise_error(noise_level(combined.position))
     assert (me > 0).all()
-    for n, m in zip(NAMES, me):
-        assert d.std[n] ** 2 == pytest.approx(d.std_stat[n] ** 2 + m ** 2, rel=1e-9)
+    for n, m, e in zip(NAMES, me, ne):
+        assert d.std[n] ** 2 == pytest.approx(d.std_stat[n] ** 2 + m ** 2 + e ** 2, rel=1e-9)
     assert set(d.as_dict()["std_stat"]) == set(NAMES)
+
+
+def test_noise_error_scales_with_the_measured_noise(tmp_path):
+    from eha_health.identify import noise_error
+    f = tmp_path / "me.yaml"
+    f.write_text("model_error_sd: {k_gm: 0.001, k_fsj: 0.002, k_bkl: 0.003}\n"
+                 "noise_reference_m: 5.0e-6\nnoise_error_sd: {k_gm: 0.002, k_fsj: 0.004, k_bkl: 0.006}\n")
+    assert list(noise_error(0.0, f)) == [0.0, 0.0, 0.0]
+    assert noise_error(1e-5, f) == pytest.approx([0.004, 0.008, 0.012])
+    no_ref = tmp_path / "noref.yaml"
+    no_ref.write_text("model_error_sd: {k_gm: 0.001, k_fsj: 0.002, k_bkl: 0.003}\n"
+                      "noise_error_sd: {k_gm: 0.002, k_fsj: 0.004, k_bkl: 0.006}\n")
+    with pytest.raises(ValueError, match="noise_reference_m"):
+        noise_error(1e-5, no_ref)
 
 
 def test_model_error_file_is_checked(tmp_path):

@@ -144,9 +144,16 @@ def cmd_bench(args) -> int:
     if args.markdown:
         Path(args.markdown).write_text(format_markdown(res, cmd))
     if args.write_model_error:
+        import yaml
         from .paperbench import model_error_yaml
         method = "hybrid" if "hybrid" in methods else methods[0]
-        Path(args.write_model_error).write_text(model_error_yaml(res, method, cmd))
+        target = Path(args.write_model_error)
+        previous = yaml.safe_load(target.read_text()) if target.is_file() else None
+        try:
+            text = model_error_yaml(res, method, cmd, previous)
+        except ValueError as e:
+            raise UsageError(str(e)) from None
+        target.write_text(text)
     print(json.dumps(res, indent=2, default=float) if args.json else format_text(res))
     return 0
 

@@ -16,7 +16,10 @@ Uncertainty: from the Jacobian of the residual at the optimum (Gauss-Newton
 covariance ``s^2 (J'J)^-1``), inflated by the residual autocorrelation (effective
 sample size), plus, in quadrature, the monitor model's measured model-form error
 (``data/model_error.yaml``: the RMS error on clean reference runs, which no fit
-residual can reveal). ``std`` is the total, ``std_stat`` the noise part.
+residual can reveal) and the error the sensor noise adds through the loop's
+stick-slip and backlash events (the excess RMS error on noisy runs, scaled by the
+position noise measured in the data). ``std`` is the total, ``std_stat`` the
+Gauss-Newton part.
 Correlations between coefficients above 0.95, or a distinct fault combination in
 the final GA population that fits almost as well, raise a "twin cases" warning.
 """
@@ -36,6 +39,7 @@ from .genetic import GAOptions, run_ga
 from .layout import O_P12, O_POS, O_VEL
 from .model import response_from_rows, simulate_batch
 from .params import Faults, ModelParams, load
+from .residuals import noise_level
 from .response import Response
 from .sequence import FDISequence
 
@@ -258,21 +262,32 @@ def uncertainty(ev: Evaluator, fit: LsqFitness, x: np.ndarray, upper: float = UP
 
 
 @functools.lru_cache(maxsize=None)
-def _model_error_file(path: str | None) -> tuple[float, float, float]:
+def _error_file(path: str | None) -> dict:
     import yaml
     from importlib import resources
+    where = path or "data/model_error.yaml"
     text = Path(path).read_text() if path else resources.files(__package__).joinpath(
         "data/model_error.yaml").read_text()
     data = yaml.safe_load(text) or {}
-    sd = data.get("model_error_sd", {})
-    try:
-        vals = tuple(float(sd[n]) for n in NAMES)
-    except (KeyError, TypeError, ValueError):
-        raise ValueError(f"model error file {path or 'data/model_error.yaml'}: needs model_error_sd "
-                         f"with {', '.join(NAMES)}") from None
-    if not all(np.isfinite(v) and v >= 0 for v in vals):
-        raise ValueError(f"model error file {path}: values must be finite and >= 0, got {vals}")
-    return vals
+
+    def triple(key: str, required: bool) -> tuple[float, float, float]:
+        sd = data.get(key)
+        if sd is None and not required:
+            return (0.0, 0.0, 0.0)
+        try:
+            vals = tuple(float(sd[n]) for n in NAMES)
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"model error file {where}: needs {key} with {', '.join(NAMES)}") from None
+        if not all(np.isfinite(v) and v >= 0 for v in vals):
+            raise ValueError(f"model error file {where}: {key} values must be finite and >= 0, got {vals}")
+        return vals
+
+    out = {"model": triple("model_error_sd", True), "noise": triple("noise_error_sd", False)}
+    ref = data.get("noise_reference_m")
+    if any(out["noise"]) and not (isinstance(ref, (int, float)) and ref > 0):
+        raise ValueError(f"model error file {where}: noise_error_sd needs noise_reference_m > 0 [m]")
+    out["noise_reference_m"] = float(ref) if ref else 0.0
+    return out
 
 
 def model_error(path: str | Path | None = None) -> np.ndarray:
@@ -281,7 +296,21 @@ def model_error(path: str | Path | None = None) -> np.ndarray:
     Measured as the RMS identification error on clean reference runs (no noise,
     so all of it is model mismatch); the file records the command that made it.
     """
-    return np.array(_model_error_file(str(path) if path else None))
+    return np.array(_error_file(str(path) if path else None)["model"])
+
+
+def noise_error(position_noise_m: float, path: str | Path | None = None) -> np.ndarray:
+    """Error the sensor noise adds beyond the Gauss-Newton term, 1 sd per coefficient.
+
+    Noise inside the loop moves the stick-slip and backlash events, which a local
+    linearisation cannot see. Measured as the excess RMS error over noisy reference runs
+    (``noise_error_sd`` at position noise ``noise_reference_m``) and scaled linearly with
+    the position noise measured in the data [m].
+    """
+    f = _error_file(str(path) if path else None)
+    if f["noise_reference_m"] <= 0:
+        return np.zeros(3)
+    return np.array(f["noise"]) * (max(float(position_noise_m), 0.0) / f["noise_reference_m"])
 
 
 def twin_warnings(corr: np.ndarray, x: np.ndarray, pop=None, pop_cost=None, cost=None) -> list[str]:
@@ -365,7 +394,8 @@ def diagnose(response: Response, method: str = "hybrid", fitness: str = "lsq", s
     out = ev.one(x)
     cost = float(fit.cost(out))
     lsq = fit if isinstance(fit, LsqFitness) else LsqFitness(meas)
-    sd, corr, sd_stat = uncertainty(ev, lsq, x, opts.upper, model_error())
+    sd, corr, sd_stat = uncertainty(ev, lsq, x, opts.upper,
+                                    np.hypot(model_error(), noise_error(noise_level(response.position))))
     warn += twin_warnings(corr, x, pop, pop_cost, cost)
     if np.any(x >= opts.upper - 1e-6):
         warn.append("an estimate sits on the upper search bound: damage beyond the modelled range")
