@@ -26,7 +26,9 @@ SAMPLE_DEPTH = 10000
 COMMAND = Topic("eha/command", "sensor_msgs/msg/JointState", SAMPLE_DEPTH, False,
                 "position command: position[0] [m], one message per sample, stamped in (simulated) time")
 JOINT_STATE = Topic("eha/joint_state", "sensor_msgs/msg/JointState", SAMPLE_DEPTH, False,
-                    "measured surface position[0] [m] and velocity[0] [m/s], stamp = the command's stamp")
+                    "measured surface position[0] [m] and velocity[0] [m/s], stamp = the command's stamp; "
+                    "a rig record may leave velocity empty and carry its load cell's force [N, opposing +x] "
+                    "in effort[0]")
 PRESSURE = Topic("eha/pressure", "sensor_msgs/msg/FluidPressure", SAMPLE_DEPTH, False,
                  "jack differential (load) pressure P1 - P2 [Pa] in fluid_pressure, same stamp")
 CURRENT = Topic("eha/current", "sensor_msgs/msg/JointState", SAMPLE_DEPTH, False,
@@ -41,6 +43,9 @@ DIAGNOSTICS = Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", 100, 
 
 #: What the monitor needs from a rig (and records as received).
 INPUTS = (COMMAND, JOINT_STATE, PRESSURE, CURRENT, TEST_WINDOW)
+#: What a rig record needs (``eha-health import``, ``discrepancy``): pressure and current topics
+#: may be absent, velocity empty.
+RECORD_INPUTS = (COMMAND, JOINT_STATE)
 #: Measured channels: topic -> Response channel(s) it carries.
 CHANNELS = {COMMAND.name: ("command",), JOINT_STATE.name: ("position", "velocity"),
             PRESSURE.name: ("pressure",), CURRENT.name: ("current",)}

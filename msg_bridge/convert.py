@@ -37,10 +37,14 @@ def command_msg(ns: int, position_m: float, joint: str):
     return JointState(header=_header(ns), name=[joint], position=[float(position_m)])
 
 
-def joint_state_msg(ns: int, position_m: float, velocity_m_s: float, joint: str):
+def joint_state_msg(ns: int, position_m: float, velocity_m_s: float | None, joint: str,
+                    load_n: float | None = None):
+    """Measured position [m] and velocity [m/s]; a rig without a velocity sensor leaves velocity
+    empty (None), a rig with a load cell puts the measured force [N], opposing +x, in effort."""
     from sensor_msgs.msg import JointState
     return JointState(header=_header(ns), name=[joint], position=[float(position_m)],
-                      velocity=[float(velocity_m_s)])
+                      velocity=[] if velocity_m_s is None else [float(velocity_m_s)],
+                      effort=[] if load_n is None else [float(load_n)])
 
 
 def pressure_msg(ns: int, pressure_pa: float, frame: str):
@@ -66,6 +70,13 @@ def command_from_msg(msg) -> tuple[int, float]:
 def joint_state_from_msg(msg) -> tuple[int, float, float]:
     return (stamp_ns(msg.header.stamp), _first(msg.position, "JointState.position"),
             _first(msg.velocity, "JointState.velocity"))
+
+
+def joint_state_record_from_msg(msg) -> tuple[int, float, float, float]:
+    """(stamp, position, velocity or NaN if not measured, load force or NaN if not measured)."""
+    opt = (lambda seq: float(seq[0]) if len(seq) else float("nan"))
+    return (stamp_ns(msg.header.stamp), _first(msg.position, "JointState.position"),
+            opt(msg.velocity), opt(msg.effort))
 
 
 def pressure_from_msg(msg) -> tuple[int, float]:

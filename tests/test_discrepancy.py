@@ -224,9 +224,26 @@ def test_import_with_a_channel_map_and_units(tmp_path):
     from eha_health.response import Response
     back = Response.from_csv(csv, required=("t", "command", "position"))
     assert np.allclose(back.position, r.position) and np.allclose(back.load, r.load)
-    p = subprocess.run(CLI + ["import", str(data), "--map", str(m), "--out", str(tmp_path / "x.mcap")],
-                       capture_output=True, text=True, cwd=ROOT)
-    assert p.returncode == 2 and "write a .csv instead" in p.stderr
+    # the same record as an MCAP bag: command and joint state only (no pressure or current topic,
+    # empty velocity), the load cell in the joint state's effort; read back as a measured record
+    bag = tmp_path / "run.mcap"
+    p = subprocess.run(CLI + ["import", str(data), "--map", str(m), "--out", str(bag)], capture_output=True,
+                       text=True, cwd=ROOT)
+    assert p.returncode == 0, p.stderr
+    from eha_health.bagrun import read_run
+    from eha_health.mcaplog import read_bag
+    assert set(read_bag(bag, topics=[]).types) == {"/eha/command", "/eha/joint_state", "/eha/test_window"}
+    run = read_run(bag, record=True)
+    assert np.array_equal(run.response.position, r.position) and np.array_equal(run.response.load, r.load)
+    assert np.allclose(run.response.t, r.t, atol=1e-12) and np.isnan(run.response.velocity).all()
+    with pytest.raises(ValueError, match="missing topic eha/pressure"):   # not an FDI test of the contract
+        read_run(bag)
+    # a channel measured only in part cannot be written (nothing is invented)
+    from eha_health.bagrun import write_run
+    from eha_health.mcaplog import BagWriter
+    r.velocity = np.where(r.t < 0.2, 0.0, np.nan)
+    with BagWriter(tmp_path / "part.mcap") as w, pytest.raises(ValueError, match="velocity is measured only in part"):
+        write_run(w, r)
 
 
 @pytest.mark.parametrize("change,expect", [
@@ -275,6 +292,14 @@ def test_real_rig_import_and_loop(tmp_path):
     assert p.returncode == 0, p.stderr
     out = _cli_json("discrepancy", str(csv), "--json", "--max-effects", "1", timeout=900)
     assert out["mode"] == "rig"
+    bag = tmp_path / "mts.mcap"     # the same record through the MCAP topic contract reads back the same
+    p = subprocess.run(CLI + ["import", str(MTS), "--map", str(ROOT / "maps/mts_servohydraulic.yaml"),
+                              "--out", str(bag)], capture_output=True, text=True, cwd=ROOT)
+    assert p.returncode == 0, p.stderr
+    from eha_health.bagrun import read_run
+    from eha_health.response import Response
+    a, b = read_run(bag, record=True).response, Response.from_csv(csv, required=("t", "command", "position"))
+    assert np.allclose(a.position, b.position, rtol=0, atol=1e-12) and np.allclose(a.load, b.load, atol=1e-9)
     b = out["before"]
     assert set(b["rms"]) == {"position"}
     # the calibrated nominal loop is physical: a positive loop gain, a valve time constant of ms

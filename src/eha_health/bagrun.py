@@ -62,15 +62,24 @@ def resolve_topics(types: dict[str, str], path, namespace: str | None = None) ->
     return out
 
 
-def _channels(bag: Bag, names: dict[str, str]) -> dict[str, Samples]:
-    pairs: dict[str, list] = {"command": [], "position": [], "velocity": [], "pressure": [], "current": []}
+def _channels(bag: Bag, names: dict[str, str], record: bool = False) -> dict[str, Samples]:
+    """Samples per channel; ``record``: a rig record (absent topics skipped, the joint state read
+    leniently: velocity and the load force in effort optional)."""
+    pairs: dict[str, list] = {}
     for topic in SIGNALS:
+        if topic.name not in names:
+            continue
+        reader, chans = cv.READERS[topic.name], C.CHANNELS[topic.name]
+        if record and topic is C.JOINT_STATE:
+            reader, chans = cv.joint_state_record_from_msg, chans + ("load",)
+        for ch in chans:
+            pairs.setdefault(ch, [])
         for i, msg in enumerate(bag.messages[names[topic.name]]):
             try:
-                vals = cv.READERS[topic.name](msg)
+                vals = reader(msg)
             except (ValueError, AttributeError, TypeError) as e:
                 raise WindowError(f"{names[topic.name]} message {i}: {e}") from None
-            for ch, v in zip(C.CHANNELS[topic.name], vals[1:]):
+            for ch, v in zip(chans, vals[1:]):
                 pairs[ch].append((vals[0], v))
     return {c: Samples.of(p) for c, p in pairs.items()}
 
@@ -89,22 +98,25 @@ def complete_windows(bag: Bag, topic: str | None) -> dict[int, dict]:
 
 
 def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence | None = None,
-             namespace: str | None = None) -> Run:
+             namespace: str | None = None, record: bool = False) -> Run:
     """The response of one test window of the bag at ``path``.
 
     ``test_id`` picks a window by its id; default the first complete one. A bag
-    without window marks is taken whole (first to last command sample). Raises
-    ``BagError`` / ``WindowError`` (both ``ValueError``) naming the problem.
+    without window marks is taken whole (first to last command sample). ``record``:
+    a measured rig record, which needs only command and joint state (position); the
+    channels it lacks come out all NaN, a load force becomes ``Response.load``.
+    Raises ``BagError`` / ``WindowError`` (both ``ValueError``) naming the problem.
     """
     names = resolve_topics(read_bag(path, topics=[]).types, path, namespace)
-    missing = [t.name for t in SIGNALS if t.name not in names]
+    needed = C.RECORD_INPUTS if record else SIGNALS
+    missing = [t.name for t in needed if t.name not in names]
     if missing:
         raise BagError(f"{path}: missing topic {missing[0]} (the contract of docs/interfaces.md needs "
-                       f"{', '.join(t.name for t in SIGNALS)})")
+                       f"{', '.join(t.name for t in needed)})")
     bag = read_bag(path, topics=list(names.values()))
-    bag.require(*(names[t.name] for t in SIGNALS))
+    bag.require(*(names[t.name] for t in needed))
     notes = [f"{path}: {bag.truncated}; using the complete part"] if bag.truncated else []
-    chans = _channels(bag, names)
+    chans = _channels(bag, names, record)
     wins = complete_windows(bag, names.get(C.TEST_WINDOW.name))
     if test_id is not None and test_id not in wins:
         raise WindowError(f"{path}: no complete test window {test_id} (complete: {sorted(wins) or 'none'})")
@@ -121,7 +133,7 @@ def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence
         start, end = int(cmd.min()), int(cmd.max())
         notes.append(f"{path}: no test-window marks; using the whole record")
     try:
-        r = assemble(chans, start, end, sequence, meta={"source": str(path), "test_id": tid})
+        r = assemble(chans, start, end, sequence, meta={"source": str(path), "test_id": tid}, record=record)
     except WindowError as e:
         why = f"{path}: test {tid}: {e}" if tid is not None else f"{path}: {e}"
         if bag.truncated:
@@ -138,8 +150,17 @@ def write_run(writer, response: Response, test_id: int = 1, start_ns: int = 0, t
     """Append ``response`` as test window ``test_id`` to an open :class:`~eha_health.mcaplog.BagWriter`,
     to the topic contract (stamps ``start_ns + t``; log time = stamp). Needs the rclpy message
     classes (msg_bridge builders). ``truth`` (fault coefficients of a simulated run) goes into
-    the metadata record ``truth/test_<id>``, never into a topic."""
+    the metadata record ``truth/test_<id>``, never into a topic.
+
+    A measured record may lack channels (all NaN): no pressure or current topic then, an empty
+    joint-state velocity; its ``load`` [N] goes into the joint-state effort.
+    """
     stamps = start_ns + np.round(np.asarray(response.t) * NS).astype(np.int64)
+    has = {c: bool(np.isfinite(getattr(response, c)).all()) for c in ("velocity", "pressure", "current")}
+    for c in has:
+        if not has[c] and np.isfinite(getattr(response, c)).any():
+            raise ValueError(f"channel {c} is measured only in part (NaN samples): cannot be written")
+    load = response.load if response.load is not None else None
 
     def put(topic, msg, ns):
         writer.write("/" + topic.name, topic.type, msg, int(ns))
@@ -147,9 +168,13 @@ def write_run(writer, response: Response, test_id: int = 1, start_ns: int = 0, t
     for i, ns in enumerate(stamps):
         ns = int(ns)
         put(C.COMMAND, cv.command_msg(ns, response.command[i], actuator_id), ns)
-        put(C.JOINT_STATE, cv.joint_state_msg(ns, response.position[i], response.velocity[i], actuator_id), ns)
-        put(C.PRESSURE, cv.pressure_msg(ns, response.pressure[i], actuator_id), ns)
-        put(C.CURRENT, cv.current_msg(ns, response.current[i], actuator_id), ns)
+        put(C.JOINT_STATE, cv.joint_state_msg(ns, response.position[i],
+                                              response.velocity[i] if has["velocity"] else None, actuator_id,
+                                              None if load is None else load[i]), ns)
+        if has["pressure"]:
+            put(C.PRESSURE, cv.pressure_msg(ns, response.pressure[i], actuator_id), ns)
+        if has["current"]:
+            put(C.CURRENT, cv.current_msg(ns, response.current[i], actuator_id), ns)
     put(C.TEST_WINDOW, cv.window_msg(int(stamps[-1]), "end", test_id), stamps[-1])
     if truth is not None:
         writer.add_metadata(f"truth/test_{test_id}", {k: str(v) for k, v in truth.items()})

@@ -54,21 +54,28 @@ def _check_order(name: str, s: Samples, start: int) -> None:
 
 
 def assemble(channels: dict[str, Samples], start_ns: int, end_ns: int,
-             sequence: FDISequence | None = None, meta: dict | None = None) -> Response:
+             sequence: FDISequence | None = None, meta: dict | None = None, record: bool = False) -> Response:
     """Build the :class:`Response` of the window ``[start_ns, end_ns]`` (stamps, inclusive).
 
     ``channels`` maps 'command' and the :data:`MEASURED` names to their samples
     (may extend beyond the window). ``t`` of the result is relative to ``start_ns``.
+    ``record=True`` reads a measured record rather than an FDI test: only command and
+    position are required, a channel absent or never measured (all NaN) comes out all
+    NaN, an optional 'load' channel [N] becomes ``Response.load``, and the window need
+    not cover the FDI sequence.
     """
     seq = sequence or FDISequence()
     if end_ns <= start_ns:
         raise WindowError(f"window end ({end_ns} ns) is not after its start ({start_ns} ns)")
-    for name in ("command",) + MEASURED:
+    required = ("command", "position") if record else ("command",) + MEASURED
+    for name in required:
         if name not in channels:
             raise WindowError(f"channel {name} missing")
     cut = {}
     for name, s in channels.items():
         inside = (s.stamps >= start_ns) & (s.stamps <= end_ns)
+        if record and name not in required and not np.isfinite(s.values[inside]).any():
+            continue            # not measured on this rig
         cut[name] = Samples(s.stamps[inside], s.values[inside])
         if len(cut[name].stamps) == 0:
             raise WindowError(f"{name}: no samples in the test window")
@@ -86,10 +93,14 @@ def assemble(channels: dict[str, Samples], start_ns: int, end_ns: int,
     if grid[0] != start_ns:
         raise WindowError(f"command: first sample at {_t(grid[0], start_ns)}, not at the window start")
     covered = (grid[-1] - grid[0] + step) / NS
-    if covered < seq.duration - 1e-9:
+    if not record and covered < seq.duration - 1e-9:
         raise WindowError(f"window too short: {covered:.3f} s recorded, the FDI sequence lasts {seq.duration:g} s")
     out = {}
-    for name in MEASURED:
+    n = len(grid)
+    for name in MEASURED + (("load",) if record else ()):
+        if name not in cut:
+            out[name] = np.full(n, np.nan)
+            continue
         s = cut[name]
         have = np.isin(grid, s.stamps)
         if not have.all():
@@ -99,6 +110,6 @@ def assemble(channels: dict[str, Samples], start_ns: int, end_ns: int,
             raise WindowError(f"{name}: {int(extra.sum())} sample(s) at stamps with no command, "
                               f"first at {_t(s.stamps[extra][0], start_ns)}")
         out[name] = s.values
-    n = len(grid)
+    load = out.pop("load", None)
     return Response(t=(grid - start_ns) / NS, command=cut["command"].values, spool=np.full(n, np.nan),
-                    meta=dict(meta or {}), **out)
+                    meta=dict(meta or {}), load=None if load is None or np.isnan(load).all() else load, **out)
