@@ -15,6 +15,7 @@ external load force. Nothing here imports ROS.
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -253,9 +254,13 @@ def fit(model: AugmentedModel, residual: Residual, x0, free=None, max_nfev: int 
 
     if len(free):
         start = batch(x0[free])
-        sol = least_squares(lambda z: batch(z)[0], x0[free], jac=lambda z: batch(z)[1],
-                            bounds=(model.lower[free], model.upper[free]), method="trf", x_scale=scale,
-                            xtol=1e-8, ftol=1e-10, gtol=1e-10, max_nfev=max_nfev)
+        with warnings.catch_warnings():
+            # on a rough cost (stick-slip) TRF's trust-region arithmetic can divide by zero; the
+            # outcome is checked below, so its RuntimeWarnings are noise on the user's terminal
+            warnings.simplefilter("ignore", RuntimeWarning)
+            sol = least_squares(lambda z: batch(z)[0], x0[free], jac=lambda z: batch(z)[1],
+                                bounds=(model.lower[free], model.upper[free]), method="trf", x_scale=scale,
+                                xtol=1e-8, ftol=1e-10, gtol=1e-10, max_nfev=max_nfev)
         r0, J, out = batch(sol.x)
         x = full(sol.x)
         if float(r0 @ r0) > float(start[0] @ start[0]):   # never hand back worse than the start
