@@ -134,12 +134,28 @@ def test_error_bars_add_the_measured_model_form_and_noise_error(combined):
     from eha_health.identify import NAMES, model_error, noise_error
     from eha_health.residuals import noise_level
     d = diagnose(combined)
-    me = model_error()
+    me = model_error(estimate=d.faults.as_tuple())     # grows with the estimated damage
     ne = noise_error(noise_level(combined.position))
-    assert (me > 0).all()
+    assert (me > 0).all() and (me >= model_error(estimate=(0.0, 0.0, 0.0))).all()
     for n, m, e in zip(NAMES, me, ne):
         assert d.std[n] ** 2 == pytest.approx(d.std_stat[n] ** 2 + m ** 2 + e ** 2, rel=1e-9)
     assert set(d.as_dict()["std_stat"]) == set(NAMES)
+
+
+def test_model_error_grows_with_the_estimate_as_the_file_says(tmp_path):
+    from eha_health.identify import model_error
+    f = tmp_path / "me.yaml"
+    f.write_text("model_error_sd: {k_gm: 0.001, k_fsj: 0.002, k_bkl: 0.003}\n"
+                 "model_error_variance: {k_gm: [1.0e-6, 0, 0, 3.0e-6], k_fsj: [4.0e-6, 0, 0, 0], "
+                 "k_bkl: [0, 0, 0, 9.0e-6]}\n")
+    assert list(model_error(f)) == [0.001, 0.002, 0.003]                  # no estimate: the RMS
+    assert model_error(f, estimate=(0.2, 0.5, 1.0)) == pytest.approx([0.002, 0.002, 0.003])
+    assert model_error(f, estimate=(0.2, 0.5, 0.0)) == pytest.approx([0.001, 0.002, 0.0])
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("model_error_sd: {k_gm: 0.001, k_fsj: 0.002, k_bkl: 0.003}\n"
+                   "model_error_variance: {k_gm: [1.0e-6, -1, 0, 0], k_fsj: [0, 0, 0, 0], k_bkl: [0, 0, 0, 0]}\n")
+    with pytest.raises(ValueError, match="four coefficients >= 0"):
+        model_error(bad, estimate=(0.1, 0.1, 0.1))
 
 
 def test_noise_error_scales_with_the_measured_noise(tmp_path):

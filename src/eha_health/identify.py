@@ -283,6 +283,18 @@ def _error_file(path: str | None) -> dict:
         return vals
 
     out = {"model": triple("model_error_sd", True), "noise": triple("noise_error_sd", False)}
+    var = data.get("model_error_variance")
+    if var is not None:
+        try:
+            c = np.array([[float(v) for v in var[n]] for n in NAMES])
+        except (KeyError, TypeError, ValueError):
+            c = None
+        if c is None or c.shape != (3, 4) or not (np.isfinite(c).all() and (c >= 0).all()):
+            raise ValueError(f"model error file {where}: model_error_variance needs, for each of "
+                             f"{', '.join(NAMES)}, four coefficients >= 0 (constant, K_GM, K_FSJ, K_BKL)")
+        out["variance"] = c
+    else:
+        out["variance"] = None
     ref = data.get("noise_reference_m")
     if any(out["noise"]) and not (isinstance(ref, (int, float)) and ref > 0):
         raise ValueError(f"model error file {where}: noise_error_sd needs noise_reference_m > 0 [m]")
@@ -290,13 +302,20 @@ def _error_file(path: str | None) -> dict:
     return out
 
 
-def model_error(path: str | Path | None = None) -> np.ndarray:
+def model_error(path: str | Path | None = None, estimate=None) -> np.ndarray:
     """Model-form error of the monitor model, 1 sd per coefficient (data/model_error.yaml).
 
-    Measured as the RMS identification error on clean reference runs (no noise,
-    so all of it is model mismatch); the file records the command that made it.
+    Measured on clean reference runs (no noise, so all of it is model mismatch); the
+    file records the command that made it. Without ``estimate``: the RMS error over those
+    runs. With the estimated (K_GM, K_FSJ, K_BKL) and a ``model_error_variance`` block:
+    the error grows with the damage, var_k = c_k0 + c_k1 K_GM + c_k2 K_FSJ + c_k3 K_BKL
+    (non-negative least squares of the squared errors on the same runs).
     """
-    return np.array(_error_file(str(path) if path else None)["model"])
+    f = _error_file(str(path) if path else None)
+    if estimate is None or f["variance"] is None:
+        return np.array(f["model"])
+    k = np.clip(np.asarray(estimate, float), 0.0, None)
+    return np.sqrt(f["variance"] @ np.concatenate([[1.0], k]))
 
 
 def noise_error(position_noise_m: float, path: str | Path | None = None) -> np.ndarray:
@@ -395,7 +414,7 @@ def diagnose(response: Response, method: str = "hybrid", fitness: str = "lsq", s
     cost = float(fit.cost(out))
     lsq = fit if isinstance(fit, LsqFitness) else LsqFitness(meas)
     sd, corr, sd_stat = uncertainty(ev, lsq, x, opts.upper,
-                                    np.hypot(model_error(), noise_error(noise_level(response.position))))
+                                    np.hypot(model_error(estimate=x), noise_error(noise_level(response.position))))
     warn += twin_warnings(corr, x, pop, pop_cost, cost)
     if np.any(x >= opts.upper - 1e-6):
         warn.append("an estimate sits on the upper search bound: damage beyond the modelled range")

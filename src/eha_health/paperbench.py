@@ -252,21 +252,31 @@ def model_error_yaml(res: dict, method: str, command: str, previous: dict | None
     data = dict(previous or {})
     rows = res["methods"][method]["rows"]
     err2 = np.mean(np.array([r["abs_err"] for r in rows]) ** 2, axis=0)
+    est = np.clip(np.array([r["est"] for r in rows]), 0.0, None)
+    design = np.column_stack([np.ones(len(rows)), est])     # 1, K_GM, K_FSJ, K_BKL of each run
     if res.get("noise"):
         if "model_error_sd" not in data:
             raise ValueError("measure the model-form error first (a clean bench), then the noise part")
-        model = np.array([float(data["model_error_sd"][n]) for n in names])
+        if "model_error_variance" in data:
+            c = np.array([[float(v) for v in data["model_error_variance"][n]] for n in names])
+            model2 = np.mean(design @ c.T, axis=0)
+        else:
+            model2 = np.array([float(data["model_error_sd"][n]) for n in names]) ** 2
         stat2 = np.mean(np.array([r["std_stat"] for r in rows]) ** 2, axis=0)
-        data["noise_error_sd"] = dict(zip(names, np.sqrt(np.maximum(err2 - model ** 2 - stat2, 0.0))))
+        data["noise_error_sd"] = dict(zip(names, np.sqrt(np.maximum(err2 - model2 - stat2, 0.0))))
         data["noise_reference_m"] = float(np.mean([r["noise_position"] for r in rows]))
         data["noise_error_command"] = f"{command}  ({len(rows)} noisy runs, {method}, fitness {res['fitness']})"
     else:
+        from scipy.optimize import nnls
+        e2 = np.array([r["abs_err"] for r in rows]) ** 2
         data["model_error_sd"] = dict(zip(names, np.sqrt(err2)))
+        data["model_error_variance"] = {n: list(nnls(design, e2[:, i])[0]) for i, n in enumerate(names)}
         data["model_error_command"] = f"{command}  ({len(rows)} clean runs, {method}, fitness {res['fitness']})"
     lines = ["# Error terms added in quadrature to the Gauss-Newton standard error of every diagnosis",
              "# (identify.model_error, identify.noise_error), 1 sd per fault coefficient.",
              "# model_error_sd: the monitor's model-form error, the RMS identification error on clean",
-             "#   reference runs (no noise: all of it is model mismatch).",
+             "#   reference runs (no noise: all of it is model mismatch); model_error_variance: how it",
+             "#   grows with the damage on the same runs (used when the estimate is known).",
              "# noise_error_sd: what sensor noise adds beyond the Gauss-Newton term (it moves the",
              "#   stick-slip and backlash events): the RMS error on noisy runs less the other two parts,",
              "#   at position noise noise_reference_m [m]; scaled by the noise measured in each run.",
@@ -278,4 +288,9 @@ def model_error_yaml(res: dict, method: str, command: str, previous: dict | None
                 lines.append(f"noise_reference_m: {data['noise_reference_m']:.4g}")
             lines.append(f"{block}_sd:")
             lines += [f"  {n}: {float(data[f'{block}_sd'][n]):.6f}" for n in names]
+            if block == "model_error" and "model_error_variance" in data:
+                lines.append("# the same runs: var = c0 + c1 K_GM + c2 K_FSJ + c3 K_BKL (estimates), NNLS of err^2")
+                lines.append("model_error_variance:")
+                lines += [f"  {n}: [" + ", ".join(f"{float(v):.4g}" for v in data["model_error_variance"][n]) + "]"
+                          for n in names]
     return "\n".join(lines) + "\n"
