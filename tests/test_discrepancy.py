@@ -73,6 +73,9 @@ def _noisy_run(params, faults, seed):
      "sag", (20.7e6 - 14e6) / (20.7e6 - 0.3e6)),
     ("flow_asymmetry", lambda p: p.updated("hydraulics", flow_asymmetry=0.1), Faults(0.3, 0.4, 0.3),
      "asymmetry", 0.1),
+    # no candidate of that name: a clogged first-stage filter drops the pilot supply, which the
+    # supply candidate's pilot-flow physics explains, sized as the pilot pressure drop
+    ("supply_pressure", lambda p: p.updated("flapper_nozzle", clogging=0.3), Faults(0.3, 0.4, 0.2), "sag", 0.3),
 ])
 def test_undeclared_effect_is_found_sized_and_unbiases_the_faults(name, plant, faults, knob, value):
     r = _noisy_run(plant(load("reference")), faults, seed=21)
