@@ -128,6 +128,8 @@ def test_fit_never_returns_worse_than_its_start():
     got = fit(m, res, x0, max_nfev=40)
     assert np.isfinite(got.rss) and got.rss <= start
     assert got.rss == pytest.approx(res.rss(m.run(got.x)[0]))
+    held = fit(m, res, x0, free=[])       # nothing free: the model evaluated where it stands
+    assert list(held.x) == x0 and held.rss == pytest.approx(start) and held.jacobian.shape[1] == 0
 
 
 def test_settings_floor_grows_with_the_effects_added():

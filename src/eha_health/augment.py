@@ -265,4 +265,8 @@ def fit(model: AugmentedModel, residual: Residual, x0, free=None, max_nfev: int 
         x = full(sol.x)
         if float(r0 @ r0) > float(start[0] @ start[0]):   # never hand back worse than the start
             (r0, J, out), x = start, x0.copy()
+    else:
+        x = x0
+        out = model.run(x0)[0]
+        r0, J = residual(out), np.zeros((residual.n * len(residual.channels), 0))
     return Fit(x, model.names, free, float(r0 @ r0), J, r0, out, model.runs - runs0)

@@ -160,7 +160,7 @@ def write_run(writer, response: Response, test_id: int = 1, start_ns: int = 0, t
     for c in has:
         if not has[c] and np.isfinite(getattr(response, c)).any():
             raise ValueError(f"channel {c} is measured only in part (NaN samples): cannot be written")
-    load = response.load if response.load is not None else None
+    load = response.load
 
     def put(topic, msg, ns):
         writer.write("/" + topic.name, topic.type, msg, int(ns))

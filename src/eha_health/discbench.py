@@ -58,7 +58,7 @@ def effect_floor(n: int = 6, seed: int = 2025, progress=None) -> dict:
             res = Residual(rec)
             g = knob_grid(cand.knobs[0], 48)
             G = np.repeat(np.concatenate([f.as_tuple(), [k.typical for k in cand.knobs]])[None], len(g), axis=0)
-            G[:, 3] = g
+            G[:, len(FAULT_KNOBS)] = g
             x0 = G[int(np.argmin([res.rss(o) for o in model.run(G)]))]
             rms = res.rms(fit(model, res, x0, max_nfev=40).output)
             rows.append([rms[c] for c in CHANNELS])

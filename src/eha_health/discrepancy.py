@@ -286,7 +286,6 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     state_before = _state(before, r_all, r_held, out_base, [], infl, truth)
     say(f"residual: {res_before.verdict}")
 
-
     def held_noise(effects) -> float:
         """Held-out residual power that noise and the floor of the model holding ``effects`` leave."""
         floor = settings.floor_with(effects)

@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import differential_evolution
 
 from .fitness import Measured, make_fitness
-from .identify import UPPER, Evaluator, diagnose
+from .identify import NAMES, UPPER, Evaluator, diagnose
 from .model import simulate
 from .params import Faults, load
 from .residuals import noise_level
@@ -116,7 +116,7 @@ def run_bench(methods=("deterministic", "ga", "hybrid"), fitness: str = "lsq", n
             d = diagnose(responses[c], method=m, fitness=fitness, seed=seed)
             rows.append(Row(c, d.faults.as_tuple(), tuple(d.std[k] for k in ("k_gm", "k_fsj", "k_bkl")),
                             d.wall_time_s, d.evaluations, group,
-                            tuple(d.std_stat[k] for k in ("k_gm", "k_fsj", "k_bkl")),
+                            tuple(d.std_stat[k] for k in NAMES),
                             noise_level(responses[c].position)))
             if progress:
                 progress(f"{m:13s} {group:8s} true {c} -> est ({rows[-1].est[0]:.4f}, {rows[-1].est[1]:.4f}, "
@@ -248,7 +248,7 @@ def model_error_yaml(res: dict, method: str, command: str, previous: dict | None
     parts, sqrt(mean(err^2) - model_sd^2 - mean(sd_stat^2)), at the mean measured position
     noise ``noise_reference_m``.
     """
-    names = ("k_gm", "k_fsj", "k_bkl")
+    names = NAMES
     data = dict(previous or {})
     rows = res["methods"][method]["rows"]
     err2 = np.mean(np.array([r["abs_err"] for r in rows]) ** 2, axis=0)
