@@ -182,6 +182,10 @@ def test_periodic_tests_play_back_to_back_and_each_is_diagnosed():
     assert (a["test_id"], b["test_id"]) == (1, 2)
     # the second test starts one period after the first, in simulated time
     assert b["start_ns"] - a["start_ns"] == 4_000_000_000
+    # the sequence ends at -5 mm; in the settle time the command node brought the actuator back,
+    # so the second test starts at rest at 0 like the first (and like the monitor model)
+    assert abs(a["response"].position[-1]) > 4e-3
+    assert abs(b["response"].position[0]) < 5e-5 and abs(b["response"].velocity[0]) < 1e-3
     assert b["diagnosis"] is not None and abs(b["diagnosis"].faults.k_gm - 0.3) <= TOL
     assert abs(a["diagnosis"].faults.k_gm - 0.3) <= TOL
 
@@ -196,3 +200,21 @@ def test_launch_ends_at_once_when_a_node_refuses_its_parameters(tmp_path):
     assert res["returncodes"]["plant"] == 2          # refused at start, one line, no traceback
     assert time.monotonic() - t0 < 60                # not left waiting for the 120 s timeout
     assert all(rc is not None for rc in res["returncodes"].values())
+
+
+def test_start_test_is_refused_until_a_plant_is_matched():
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+    from std_srvs.srv import Trigger
+
+    from eha_health.nodes import teardown
+    from eha_health.nodes.command import CommandNode
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    node = CommandNode(context=ctx)
+    try:
+        res = node._on_trigger(Trigger.Request(), Trigger.Response())
+        assert not res.success and "no plant matched" in res.message
+        assert node.tests_started == 0
+    finally:
+        teardown(None, [node], ctx)

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import time
 
+import numpy as np
+
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from std_srvs.srv import Trigger
@@ -40,18 +42,22 @@ class CommandNode(Node):
             description="autostart/period: wait up to this long for plant and monitor subscribers [s]"))
         self.declare_parameter("graph_grace_s", 2.0, d(
             description="after plant and monitor are discovered, wait this long before autostart [s]"))
-        self.declare_parameter("settle_s", 0.5, d(description="rest between two tests [s of simulated time]"))
+        self.declare_parameter("settle_s", 0.5, d(
+            description="between two tests [s of simulated time]: the actuator is brought back to the "
+                        "test's first command over the first half (raised cosine) and rests there"))
         self.declare_parameter("max_in_flight", 200, d(description="rate 0: samples ahead of the plant"))
         self.declare_parameter("actuator_id", "eha", d(description="joint name in the command messages"))
         self.sequence = sequence or FDISequence()
         self.pub_cmd = self.create_publisher(msg_class(C.COMMAND), C.COMMAND.name, qos(C.COMMAND))
         self.pub_win = self.create_publisher(msg_class(C.TEST_WINDOW), C.TEST_WINDOW.name, qos(C.TEST_WINDOW))
-        self.create_subscription(msg_class(C.JOINT_STATE), C.JOINT_STATE.name, self._on_echo, qos(C.JOINT_STATE))
+        self._echo = self.create_subscription(msg_class(C.JOINT_STATE), C.JOINT_STATE.name, self._on_echo,
+                                              qos(C.JOINT_STATE))
         self.create_service(Trigger, "eha/start_test", self._on_trigger)
         self.tests_started = 0
         self.tests_done = 0
         self.next_start_ns = 0          # simulated time of the next test's first sample
         self._test: dict | None = None  # the test being played
+        self._last_u: float | None = None   # last command sent [m]
         self._echo_ns = -1
         self._stall_since = None
         self._pending = bool(self.get_parameter("autostart").value)
@@ -68,6 +74,11 @@ class CommandNode(Node):
 
     # ---------------------------------------------------------------- requests
     def _on_trigger(self, request, response):
+        # discovered is not matched: a plant whose answers do not reach us yet would not hear
+        # the first samples either
+        if self.pub_cmd.get_subscription_count() < 1 or self._echo.get_publisher_count() < 1:
+            response.success, response.message = False, "no plant matched on eha/command and eha/joint_state yet"
+            return response
         ok, why = self.start_test()
         response.success, response.message = ok, why
         return response
@@ -85,9 +96,21 @@ class CommandNode(Node):
         dt_ns = round(NS / fs)
         t0 = self.next_start_ns
         self.tests_started += 1
-        self._test = {"id": self.tests_started, "u": self.sequence.command(t), "k": 0, "t0": t0, "dt": dt_ns,
-                      "wall0": time.monotonic()}
-        self.pub_win.publish(cv.window_msg(t0, "start", self.tests_started))
+        u = self.sequence.command(t)
+        stamps = t0 + dt_ns * np.arange(len(u), dtype=np.int64)
+        # The sequence ends mid-sine (-5 mm by default), but a test, and the monitor model, start
+        # at rest at the first command: after an earlier test, bring the actuator back first,
+        # inside the settle time before this test's start (outside its window)
+        m = int(round(float(self.get_parameter("settle_s").value) / 2 * fs))
+        if self._last_u is not None and m > 0 and self._last_u != u[0]:
+            back = self._last_u + (u[0] - self._last_u) * (1 - np.cos(np.pi * np.arange(1, m + 1) / m)) / 2
+            lead = t0 - 2 * m * dt_ns + dt_ns * np.arange(1, m + 1, dtype=np.int64)
+            u, stamps = np.concatenate([back, u]), np.concatenate([lead, stamps])
+        else:
+            m = 0
+        self._test = {"id": self.tests_started, "u": u, "stamps": stamps, "first": m, "k": 0, "t0": t0,
+                      "dt": dt_ns, "wall0": time.monotonic()}
+        self._last_u = float(u[-1])
         self.get_logger().info(f"test {self.tests_started}: {len(t)} samples at {fs:g} Hz from t={t0 / NS:.3f} s")
         return True, f"test {self.tests_started} started"
 
@@ -116,12 +139,12 @@ class CommandNode(Node):
             self._maybe_start()
             return
         T = self._test
-        n = len(T["u"])
+        n, stamps = len(T["u"]), T["stamps"]
         rate = float(self.get_parameter("rate").value)
         if rate > 0:
-            due = min(n, int((time.monotonic() - T["wall0"]) * rate * NS / T["dt"]) + 1)
+            due = int(np.searchsorted(stamps, stamps[0] + (time.monotonic() - T["wall0"]) * rate * NS, "right"))
         else:
-            acked = (self._echo_ns - T["t0"]) // T["dt"] + 1 if self._echo_ns >= T["t0"] else 0
+            acked = int(np.searchsorted(stamps, self._echo_ns, "right"))
             due = min(n, acked + int(self.get_parameter("max_in_flight").value))
             if due == T["k"]:   # nothing acknowledged: is anyone answering?
                 self._stall_since = self._stall_since or time.monotonic()
@@ -133,10 +156,12 @@ class CommandNode(Node):
                 self._stall_since = None
         joint = self.get_parameter("actuator_id").value
         for k in range(T["k"], due):
-            self.pub_cmd.publish(cv.command_msg(T["t0"] + k * T["dt"], T["u"][k], joint))
+            if k == T["first"]:
+                self.pub_win.publish(cv.window_msg(T["t0"], "start", T["id"]))
+            self.pub_cmd.publish(cv.command_msg(int(stamps[k]), T["u"][k], joint))
         T["k"] = due
         if due == n:
-            t_end = T["t0"] + (n - 1) * T["dt"]
+            t_end = int(stamps[-1])
             self.pub_win.publish(cv.window_msg(t_end, "end", T["id"]))
             self.tests_done += 1
             settle = round(float(self.get_parameter("settle_s").value) * NS)
@@ -147,6 +172,14 @@ class CommandNode(Node):
             wait = (self.next_start_ns - t_end) / NS / rate if rate > 0 else 0.0
             self._next_wall = time.monotonic() + wait
             self._test = None
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Before the node goes: wait (bounded) until every subscriber has acknowledged the
+        samples and marks already published; a process that exits right after its last
+        sample would otherwise take the end of the test with it."""
+        from rclpy.duration import Duration
+        for pub in (self.pub_cmd, self.pub_win):
+            pub.wait_for_all_acked(Duration(seconds=timeout_s))
 
     def _maybe_start(self) -> None:
         period = self.get_parameter("period_s").value

@@ -206,12 +206,14 @@ def launch(faults: Faults = Faults(), effects=(), seed: int = 0, tests: int = 1,
         env["ROS_DOMAIN_ID"] = str(domain_id)
     ns = ["-r", f"__ns:={namespace}"] if namespace else []
     plant_fqn = (namespace.rstrip("/") + "/eha_plant") if namespace else "/eha_plant"
-    period = 0.0 if tests == 1 else 4.0
+    # the monitor asks for each test once the plant's answers reach it (matched, not only
+    # discovered) and the previous verdict is in: no test starts into a half-connected graph
     cmds = {
-        "monitor": {"exit_after": tests, "log_path": str(log_path), "plant_node": plant_fqn, "method": method},
+        "monitor": {"exit_after": tests, "log_path": str(log_path), "plant_node": plant_fqn, "method": method,
+                    "request_tests": tests},
         "plant": {"k_gm": float(faults.k_gm), "k_fsj": float(faults.k_fsj), "k_bkl": float(faults.k_bkl),
                   "seed": int(seed), **({"effects": list(effects)} if effects else {})},
-        "command": {"autostart": True, "max_tests": tests, "rate": float(rate), "period_s": period},
+        "command": {"max_tests": tests, "rate": float(rate)},
     }
     procs = {name: subprocess.Popen([sys.executable, "-m", f"eha_health.nodes.{name}", *_ros_args(p), *ns], env=env)
              for name, p in cmds.items()}

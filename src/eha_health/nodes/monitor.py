@@ -63,12 +63,15 @@ class MonitorNode(Node):
         self.declare_parameter("plant_node", "", d(
             description="simulated runs: node whose k_* parameters are the truth (into MCAP metadata)"))
         self.declare_parameter("window_timeout_s", 2.0, d(
-            description="after the end mark, wait this long [s] for late samples"))
+            description="after the end mark, wait for late samples until none has come for this long [s]"))
         self.declare_parameter("diagnostics_period_s", 1.0, d(description="re-publish the status this often [s]"))
         self.declare_parameter("exit_after", 0, d(description="stop after this many windows (0: run on)"))
         self.declare_parameter("discrepancy", False, d(
             description="after each diagnosis run the discrepancy loop; a structured residual -> WARN 'model lacks: ...'"))
         self.declare_parameter("discrepancy_max_effects", 1, d(description="most effects the loop may add"))
+        self.declare_parameter("request_tests", 0, d(
+            description="ask the command node (eha/start_test) for this many tests, one after each verdict, "
+                        "each once every input topic has a matched publisher (0: never ask)"))
 
         self.log = self._open_log()
         self._buf = {c: deque(maxlen=BUFFER) for c in ("command", "position", "velocity", "pressure", "current")}
@@ -87,9 +90,16 @@ class MonitorNode(Node):
         handlers = {C.COMMAND.name: self._on_command, C.JOINT_STATE.name: self._on_joint_state,
                     C.PRESSURE.name: self._on_pressure, C.CURRENT.name: self._on_current,
                     C.TEST_WINDOW.name: self._on_window}
-        for topic in C.INPUTS:
-            self.create_subscription(msg_class(topic), topic.name, self._recorder(topic, handlers.get(topic.name)),
-                                     qos(topic), raw=True)
+        self._subs = [self.create_subscription(msg_class(topic), topic.name,
+                                               self._recorder(topic, handlers.get(topic.name)), qos(topic), raw=True)
+                      for topic in C.INPUTS]
+        self.tests_requested = 0
+        self._request = None                  # the start_test call in flight
+        self._next_request = 0.0
+        self._start_client = None
+        if int(self.get_parameter("request_tests").value) > 0:
+            from std_srvs.srv import Trigger
+            self._start_client = self.create_client(Trigger, "eha/start_test")
         self._truth_client = None
         if self.get_parameter("plant_node").value:
             from rcl_interfaces.srv import GetParameters
@@ -185,9 +195,14 @@ class MonitorNode(Node):
 
     # ---------------------------------------------------------------- windows
     def _poll(self) -> None:
+        self._maybe_request_test()
         while self._queue:
             w = self._queue[0]
             ready = all(self._last[c] >= w["end"] for c in self._buf)
+            progress = tuple(self._last.values())
+            if progress != w.get("progress"):   # samples still arriving (a busy plant): wait on
+                w["progress"] = progress
+                w["deadline"] = time.monotonic() + float(self.get_parameter("window_timeout_s").value)
             if not ready and time.monotonic() < w["deadline"]:
                 break
             self._queue.popleft()
@@ -199,6 +214,36 @@ class MonitorNode(Node):
                 self._report(w, d, None, rep)
             except Exception as e:   # identification refused the data (ValueError) or failed
                 self._report(w, None, f"{type(e).__name__}: {e}" if not isinstance(e, ValueError) else str(e))
+
+    def _maybe_request_test(self) -> None:
+        """Ask for the next test once the previous one has its verdict and every input is matched.
+
+        Discovery says a node exists; only a matched publisher delivers. Starting a test
+        before the plant's answers reach this node would lose its first samples.
+        """
+        if self._start_client is None or self._request is not None or time.monotonic() < self._next_request:
+            return
+        if self.tests_requested >= int(self.get_parameter("request_tests").value):
+            return
+        if len(self.results) < self.tests_requested or self._queue or self._futures:
+            return
+        if not all(s.get_publisher_count() >= 1 for s in self._subs) or not self._start_client.service_is_ready():
+            return
+        from std_srvs.srv import Trigger
+        self._request = self._start_client.call_async(Trigger.Request())
+
+        def done(f):
+            self._request = None
+            try:
+                ok, why = f.result().success, f.result().message
+            except Exception as e:   # the command node went away: try again later
+                ok, why = False, str(e)
+            if ok:
+                self.tests_requested += 1
+            else:
+                self._next_request = time.monotonic() + 0.5
+                self.get_logger().info(f"start_test refused: {why}; asking again", throttle_duration_sec=5.0)
+        self._request.add_done_callback(done)
 
     def _start_diagnosis(self, w: dict) -> None:
         if self.log is not None:
