@@ -12,6 +12,10 @@ Methods (``diagnose(..., method=...)``):
 * ``hybrid`` -- paper Sec. VII's proposal: the deterministic estimate seeds the GA
   population, then the local refinement. The default.
 
+The ``lsq`` refinement is a trust-region least-squares fit followed by a compass
+polish (:func:`compass_polish`), which finishes where stick-slip and backlash events
+leave the cost too rough for finite-difference steps.
+
 Uncertainty: from the Jacobian of the residual at the optimum (Gauss-Newton
 covariance ``s^2 (J'J)^-1``), inflated by the residual autocorrelation (effective
 sample size), plus, in quadrature, the monitor model's measured model-form error
@@ -136,7 +140,30 @@ def refine_lsq(ev: Evaluator, fit: LsqFitness, x0: np.ndarray, upper: float = UP
     x0 = np.clip(np.asarray(x0, float), 0.0, upper)
     sol = least_squares(fun, x0, jac=jac, bounds=(np.zeros(3), np.full(3, upper)), method="trf",
                         x_scale=np.full(3, 0.1), xtol=1e-6, ftol=1e-10, gtol=1e-10, max_nfev=60)
-    return sol.x, float(2 * sol.cost)
+    return compass_polish(ev, fit, sol.x, float(2 * sol.cost), upper, history)
+
+
+def compass_polish(ev: Evaluator, fit, x: np.ndarray, cost: float, upper: float = UPPER, history=None,
+                   step: float = 4e-3, min_step: float = 2.5e-4):
+    """Derivative-free finish: try +-step on each coefficient (one parallel batch of six), move to
+    the best that lowers the cost, halve the step when none does, down to ``min_step``.
+
+    Stick-slip and backlash events leave the cost slightly rough on the scale of the
+    finite-difference step, where trust-region steps built on that Jacobian stall
+    (measured: TRF stopped 0.003 short in K_FSJ on a valley that falls by 3 %).
+    """
+    x = np.asarray(x, float).copy()
+    while step >= min_step:
+        X = np.clip(np.vstack([x + s * e for e in np.eye(3) for s in (step, -step)]), 0.0, upper)
+        c = fit.costs(ev.run(X))
+        i = int(np.argmin(c))
+        if c[i] < cost:
+            x, cost = X[i], float(c[i])
+            if history is not None:
+                history.append(cost)
+        else:
+            step /= 2
+    return x, cost
 
 
 def refine_paper(ev: Evaluator, fit: PaperFitness, x0: np.ndarray, upper: float = UPPER, history=None):
