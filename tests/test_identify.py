@@ -181,3 +181,13 @@ def test_model_error_file_is_checked(tmp_path):
     bad.write_text("model_error_sd:\n  k_gm: 0.001\n")
     with pytest.raises(ValueError, match="needs model_error_sd"):
         model_error(bad)
+
+
+def test_deterministic_and_ga_beat_their_rows_of_the_papers_table_6():
+    """The issue's Table 6 targets, on the paper's single and combined cases (clean)."""
+    from eha_health.paperbench import PAPER_TABLE6, run_bench
+    res = run_bench(methods=("deterministic", "ga"), de=False)
+    for m, (fsj, gm, bkl, mean) in PAPER_TABLE6.items():
+        t = res["methods"][m]["table6_paper_cases"]
+        got = (t["fsj_pct"], t["gm_pct"], t["bkl_pct"], t["mean_pct"])
+        assert all(g < p for g, p in zip(got, (fsj, gm, bkl, mean))), (m, got)
