@@ -58,6 +58,7 @@ class CommandNode(Node):
         self.next_start_ns = 0          # simulated time of the next test's first sample
         self._test: dict | None = None  # the test being played
         self._last_u: float | None = None   # last command sent [m]
+        self._last_ns = -1                  # and its stamp [ns]
         self._echo_ns = -1
         self._stall_since = None
         self._pending = bool(self.get_parameter("autostart").value)
@@ -102,6 +103,7 @@ class CommandNode(Node):
         # at rest at the first command: after an earlier test, bring the actuator back first,
         # inside the settle time before this test's start (outside its window)
         m = int(round(float(self.get_parameter("settle_s").value) / 2 * fs))
+        m = min(m, max(0, (t0 - self._last_ns) // dt_ns - 1) // 2)   # settle_s raised since: fit the gap
         if self._last_u is not None and m > 0 and self._last_u != u[0]:
             back = self._last_u + (u[0] - self._last_u) * (1 - np.cos(np.pi * np.arange(1, m + 1) / m)) / 2
             lead = t0 - 2 * m * dt_ns + dt_ns * np.arange(1, m + 1, dtype=np.int64)
@@ -110,7 +112,7 @@ class CommandNode(Node):
             m = 0
         self._test = {"id": self.tests_started, "u": u, "stamps": stamps, "first": m, "k": 0, "t0": t0,
                       "dt": dt_ns, "wall0": time.monotonic()}
-        self._last_u = float(u[-1])
+        self._last_u, self._last_ns = float(u[-1]), int(stamps[-1])
         self.get_logger().info(f"test {self.tests_started}: {len(t)} samples at {fs:g} Hz from t={t0 / NS:.3f} s")
         return True, f"test {self.tests_started} started"
 
