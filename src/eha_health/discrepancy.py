@@ -151,18 +151,18 @@ def knob_grid(k: Knob, n: int) -> np.ndarray:
     return np.linspace(k.lo, k.hi, n)
 
 
-def _rescan(model: AugmentedModel, residual: Residual, x: np.ndarray, n_base: int,
+def _rescan(model: AugmentedModel, residual: Residual, start: Fit, n_base: int,
             factors=np.geomspace(0.6, 1.6, 17)) -> np.ndarray:
     """Before the final fit: each effect knob scanned over x0.6-1.6 of its value, the others held.
 
     The candidate was sized on the fit part from a coarse grid; on the whole record the cost in an
     effect parameter can have several local minima (measured: oil compliance, 0.81 /GPa local
     against 1.04 global for a true 1.0, the pressure residual jumping with stick-slip events in
-    between), and a local fit stays in the first one. One batch per knob; keeps ``x`` if nothing
+    between), and a local fit stays in the first one. One batch per knob; keeps ``start.x`` if nothing
     scanned is better.
     """
-    x = np.asarray(x, float).copy()
-    best = residual.rss(model.run(x)[0])
+    x = np.asarray(start.x, float).copy()
+    best = residual.rss(start.output)
     for i in range(n_base, len(x)):
         if x[i] == 0.0:
             continue
@@ -364,7 +364,7 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
         structured = res.structured
         say(f"selected {ev.name}; residual now {res.verdict}")
 
-    after = fit(model, r_final, _rescan(model, r_final, base.x, len(base_knobs))) \
+    after = fit(model, r_final, _rescan(model, r_final, base, len(base_knobs))) \
         if selected else before
     res_after = analyse(record.t, record.channels, _channels(record, after.output), segments,
                         settings.floor_with(selected)) \

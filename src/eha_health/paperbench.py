@@ -114,7 +114,7 @@ def run_bench(methods=("deterministic", "ga", "hybrid"), fitness: str = "lsq", n
         rows = []
         for c, group in cases:
             d = diagnose(responses[c], method=m, fitness=fitness, seed=seed)
-            rows.append(Row(c, d.faults.as_tuple(), tuple(d.std[k] for k in ("k_gm", "k_fsj", "k_bkl")),
+            rows.append(Row(c, d.faults.as_tuple(), tuple(d.std[k] for k in NAMES),
                             d.wall_time_s, d.evaluations, group,
                             tuple(d.std_stat[k] for k in NAMES),
                             noise_level(responses[c].position)))
@@ -251,7 +251,8 @@ def model_error_yaml(res: dict, method: str, command: str, previous: dict | None
     names = NAMES
     data = dict(previous or {})
     rows = res["methods"][method]["rows"]
-    err2 = np.mean(np.array([r["abs_err"] for r in rows]) ** 2, axis=0)
+    e2 = np.array([r["abs_err"] for r in rows]) ** 2          # squared error per run and coefficient
+    err2 = e2.mean(axis=0)
     est = np.clip(np.array([r["est"] for r in rows]), 0.0, None)
     design = np.column_stack([np.ones(len(rows)), est])     # 1, K_GM, K_FSJ, K_BKL of each run
     if res.get("noise"):
@@ -268,7 +269,6 @@ def model_error_yaml(res: dict, method: str, command: str, previous: dict | None
         data["noise_error_command"] = f"{command}  ({len(rows)} noisy runs, {method}, fitness {res['fitness']})"
     else:
         from scipy.optimize import nnls
-        e2 = np.array([r["abs_err"] for r in rows]) ** 2
         data["model_error_sd"] = dict(zip(names, np.sqrt(err2)))
         data["model_error_variance"] = {n: list(nnls(design, e2[:, i])[0]) for i, n in enumerate(names)}
         data["model_error_command"] = f"{command}  ({len(rows)} clean runs, {method}, fitness {res['fitness']})"
