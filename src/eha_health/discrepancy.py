@@ -26,6 +26,10 @@
 3. **After**: the selected effects added, every knob re-fitted together; the
    report gives both states (per-channel RMS, fitness, coefficients and their
    errors against a known truth) and the ranked candidates with their evidence.
+   The verdict is "model lacks: ..." (effects selected), "no significant missing
+   effect" (the residual is noise), or, when the residual is structured but no
+   candidate passes, :data:`UNEXPLAINED`: the model lacks something the library
+   cannot supply, and a diagnosis fitted without it may be biased.
 
 Nothing here imports ROS.
 """
@@ -47,6 +51,14 @@ from .fitness import CHANNEL_COLUMNS
 from .identify import _autocorr_inflation
 from .params import ModelParams, load
 from .residuals import DISPLAY_UNITS, ResidualAnalysis, analyse
+
+
+#: Verdict when the residual is noise (within noise and the model's floor, or white).
+NO_MISSING_EFFECT = "no significant missing effect"
+#: Verdict when the residual is structured but no candidate passes: the model lacks something the
+#: library does not hold (or that its time-domain refit cannot match, e.g. a limit cycle's phase), and
+#: the coefficients fitted without it may be biased.
+UNEXPLAINED = "structured residual that no candidate effect explains"
 
 
 @dataclass(frozen=True)
@@ -121,7 +133,7 @@ class DiscrepancyReport:
     after: State
     candidates: list[CandidateEvidence]
     selected: list[str]
-    verdict: str                  # 'no significant missing effect' or 'model lacks: ...'
+    verdict: str                  # 'model lacks: ...', UNEXPLAINED or NO_MISSING_EFFECT
     residual_before: ResidualAnalysis
     residual_after: ResidualAnalysis
     wall_time_s: float
@@ -371,7 +383,8 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
         if selected else res_before
     infl = _autocorr_inflation(after.residual, len(r_final.channels))
     state_after = _state(after, r_all, r_held, out_base, selected, infl, truth)
-    verdict = ("model lacks: " + ", ".join(selected)) if selected else "no significant missing effect"
+    verdict = ("model lacks: " + ", ".join(selected)) if selected else \
+        UNEXPLAINED if res_before.structured else NO_MISSING_EFFECT
     return DiscrepancyReport(
         before=state_before, after=state_after, candidates=evidence, selected=selected, verdict=verdict,
         residual_before=res_before, residual_after=res_after, wall_time_s=time.perf_counter() - t0,

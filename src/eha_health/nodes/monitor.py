@@ -67,7 +67,8 @@ class MonitorNode(Node):
         self.declare_parameter("diagnostics_period_s", 1.0, d(description="re-publish the status this often [s]"))
         self.declare_parameter("exit_after", 0, d(description="stop after this many windows (0: run on)"))
         self.declare_parameter("discrepancy", False, d(
-            description="after each diagnosis run the discrepancy loop; a structured residual -> WARN 'model lacks: ...'"))
+            description="after each diagnosis run the discrepancy loop; a structured residual -> WARN 'model lacks: "
+                        "...' (or, when no candidate explains it, WARN that the coefficients may be biased)"))
         self.declare_parameter("discrepancy_max_effects", 1, d(description="most effects the loop may add"))
         self.declare_parameter("request_tests", 0, d(
             description="ask the command node (eha/start_test) for this many tests, one after each verdict, "
@@ -284,13 +285,18 @@ class MonitorNode(Node):
             values = {"test_id": tid}
             if rep is not None:
                 values["discrepancy"] = rep.verdict
+                entry["discrepancy"] = rep
+                lacks = None
                 if rep.selected:
                     lacks = f"{rep.verdict} (position residual RMS {rep.before.rms['position'] * 1e6:.1f} -> " \
                             f"{rep.after.rms['position'] * 1e6:.1f} um; coefficients re-identified with it: " + \
                             ", ".join(f"{n.upper()}={rep.after.values[n]:.3f}" for n in NAMES) + ")"
+                elif rep.residual_before.structured:
+                    # the diagnosis was fitted by a model that misses something: say so, with the evidence
+                    lacks = f"{rep.verdict}; the coefficients may be biased ({rep.residual_before.evidence[0]})"
+                if lacks:
                     msg = lacks + "; " + msg if level == "OK" else msg + "; " + lacks
                     level = "WARN" if level == "OK" else level
-                    entry["discrepancy"] = rep
             for n, v in zip(NAMES, k):
                 values[n] = v
                 values[n + "_std"] = d.std[n]
