@@ -347,6 +347,13 @@ def test_real_rig_import_and_loop(tmp_path):
     # the calibrated model leaves a structured residual (offset, gain error above the fit band):
     # whatever the loop makes of it, it must not be reported as noise
     assert out["residual_before"]["verdict"] == "structured" and out["verdict"] != NO_MISSING_EFFECT
+    # frequency response over the chirp's band: measured gain falls with frequency (a low-pass loop)
+    # and the calibrated model, fitted on the first 70 % only, tracks it in gain and phase
+    fr = out["frequency_response"]
+    assert len(fr) >= 6 and fr[0]["f_lo"] < 2.0 and fr[-1]["f_hi"] > 18.0
+    g = [b["gain"]["measured"] for b in fr]
+    assert all(a > b for a, b in zip(g, g[1:]))
+    assert all(0.9 < b["gain_ratio"]["before"] < 1.1 and abs(b["phase_error_deg"]["before"]) < 5.0 for b in fr)
 
 
 # ----------------------------------------------------------------------------- monitor node

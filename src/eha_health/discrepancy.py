@@ -143,6 +143,8 @@ class DiscrepancyReport:
     fitted_before: dict = field(repr=False, default_factory=dict)
     fitted_after: dict = field(repr=False, default_factory=dict)
     split_time_s: float = 0.0
+    # rig records: position/command gain and phase per band, measured and modelled (frequency.compare)
+    frequency_response: list | None = None
 
     def as_dict(self) -> dict:
         return {"verdict": self.verdict, "selected": self.selected,
@@ -150,7 +152,8 @@ class DiscrepancyReport:
                 "candidates": [asdict(c) for c in self.candidates],
                 "residual_before": self.residual_before.as_dict(),
                 "residual_after": self.residual_after.as_dict(),
-                "split_time_s": self.split_time_s, "wall_time_s": self.wall_time_s, "runs": self.runs}
+                "split_time_s": self.split_time_s, "wall_time_s": self.wall_time_s, "runs": self.runs,
+                "frequency_response": self.frequency_response}
 
 
 # --------------------------------------------------------------------------- pieces
@@ -445,5 +448,12 @@ def format_report(rep: DiscrepancyReport, what: str = "") -> str:
         lines.append(f"   r{c.round} {c.name:17s} dIC {c.delta_ic:9.1f}  held-out x{c.held_out_ratio:6.3f} "
                      f"(excess x{min(c.held_out_excess_ratio, 99.0):6.3f})  fit x{c.fit_ratio:6.3f}  "
                      f"projection {c.projection:5.2f}  {pars}{mark}")
+    if rep.frequency_response:
+        lines.append("  frequency response position/command (H1 over the record; bands where the command has power "
+                     "and the measured coherence >= 0.9):")
+        lines.append(f"  {'band Hz':>12s} {'measured':>16s} {'before':>16s} {'after':>16s}   (gain, phase deg)")
+        for b in rep.frequency_response:
+            cells = "".join(f" {b['gain'][k]:7.3f} {b['phase_deg'][k]:7.1f} " for k in ("measured", "before", "after"))
+            lines.append(f"  {b['f_lo']:5.1f}-{b['f_hi']:5.1f} {cells}")
     lines.append(f"  {rep.runs} model runs in {rep.wall_time_s:.1f} s")
     return "\n".join(lines)

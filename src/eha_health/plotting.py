@@ -116,7 +116,9 @@ def plot_discrepancy(rep, path: str | Path):
     """Residual (fitted - measured) per channel before and after augmentation, and the ranking."""
     from .residuals import DISPLAY_UNITS
     chans = list(rep.measured)
-    fig, axes = plt.subplots(len(chans) + 1, 1, figsize=(10, 2.3 * (len(chans) + 1) + 0.5))
+    fr = rep.frequency_response or []
+    rows = len(chans) + 1 + bool(fr)
+    fig, axes = plt.subplots(rows, 1, figsize=(10, 2.3 * rows + 0.5))
     for ax, c in zip(axes, chans):
         k, unit = DISPLAY_UNITS[c]
         ax.plot(rep.t, (rep.fitted_before[c] - rep.measured[c]) * k, lw=0.7,
@@ -128,6 +130,20 @@ def plot_discrepancy(rep, path: str | Path):
         ax.grid(alpha=0.3)
         ax.legend(loc="upper left", fontsize=7)
     axes[len(chans) - 1].set_xlabel("t [s]  (dotted: fit | held-out split)")
+    if fr:
+        ax = axes[len(chans)]
+        fc = [(b["f_lo"] + b["f_hi"]) / 2 for b in fr]
+        for k, st in (("before", "o-"), ("after", "s--")):
+            ax.plot(fc, [100 * (b["gain_ratio"][k] - 1) for b in fr], st, label=f"{k}: gain error [%]")
+        ax.axhline(0.0, color="k", lw=0.8)
+        ax.set_ylabel("model / measured - 1 [%]")
+        ax.set_xlabel("f [Hz]  (position / command, H1 per band; phase error on the right)")
+        ax.grid(alpha=0.3)
+        tw = ax.twinx()
+        for k, st in (("before", "o:"), ("after", "s:")):
+            tw.plot(fc, [b["phase_error_deg"][k] for b in fr], st, color="0.4", ms=3)
+        tw.set_ylabel("phase error [deg]")
+        ax.legend(loc="lower left", fontsize=7)
     ax = axes[-1]
     first = [c for c in rep.candidates if c.round == 1]
     names = [c.name for c in first]

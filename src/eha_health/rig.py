@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import frequency
 from .augment import Knob, Record
 from .candidates import CANDIDATES
 from .discrepancy import DiscrepancyReport, Settings, quantile_segments, run_loop
@@ -66,6 +67,12 @@ def analyse_rig(response, max_effects: int = 2, fit_fraction: float = 0.7, progr
     # a rig record is long (one run ~0.1 s): a coarser grid and one local fit per candidate
     settings = Settings(fit_fraction=fit_fraction, grid=grid, starts=1, max_nfev=20)
     x0 = np.array([k.typical for k in RIG_KNOBS])
-    return run_loop(rec, rig_params(), RIG_KNOBS, x0, quantile_segments(rec), RIG_CANDIDATES, max_effects,
-                    settings, None, "fit", progress)
+    rep = run_loop(rec, rig_params(), RIG_KNOBS, x0, quantile_segments(rec), RIG_CANDIDATES, max_effects,
+                   settings, None, "fit", progress)
+    if "position" in rep.measured:
+        # both models are fitted on the fit part only: over the whole record this is their prediction
+        rep.frequency_response = frequency.compare(
+            rec.command, rep.measured["position"],
+            {"before": rep.fitted_before["position"], "after": rep.fitted_after["position"]}, rec.sample_rate)
+    return rep
 
