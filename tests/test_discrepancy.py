@@ -117,17 +117,28 @@ def test_no_missing_effect_on_noise_only_data():
         assert rep.after.values == rep.before.values
 
 
-def test_structured_residual_no_candidate_explains_is_said_not_hidden():
-    # compressibility with backlash: a ~40 Hz limit cycle whose phase no time-domain refit matches,
-    # so no candidate passes (a known miss) -- but the residual is far above noise and the fault
-    # coefficients are biased, so the verdict must not read as if the residual were noise
+def test_limit_cycle_effect_is_found_from_the_base_re_identified_with_it():
+    # compressibility with backlash: a ~43 Hz limit cycle whose phase only matches near the true
+    # faults, while the diagnosis without compressibility sits at K_BKL ~0.01; no local refit from
+    # there passes, so round 1 re-identifies the faults with each candidate in the model
     faults = Faults(0.3, 0.4, 0.3)
     rep = analyse_fdi_test(_noisy_run(load("reference").with_effect_names(["compressibility"]), faults, seed=5),
                            max_effects=1, truth=dict(zip(NAMES, faults.as_tuple())))
+    assert max(rep.before.errors.values()) > 0.2
+    assert rep.selected == ["compressibility"]
+    assert max(rep.after.errors.values()) <= 0.03
+    assert rep.after.rms["position"] <= rep.before.rms["position"] / 3
+    assert rep.after.values["oil_compliance"] == pytest.approx(1.0, rel=0.15)
+
+
+def test_structured_residual_no_candidate_explains_is_said_not_hidden():
+    # a soft mount without faults (the bench's case, noise seed 130): found and sized, but its
+    # held-out gain stays under the gate -- a known miss; the residual is structured, so the
+    # verdict must not read as if it were noise
+    rep = analyse_fdi_test(_noisy_run(load("reference").updated("linkage", stiffness=5e6), Faults(0, 0, 0), seed=130),
+                           max_effects=1)
     assert rep.residual_before.structured
     assert rep.selected == [] and rep.verdict == UNEXPLAINED
-    assert max(rep.before.errors.values()) > 0.1
-    assert rep.before.rms["position"] > 5 * rep.residual_before.channels["position"].noise_sd
 
 
 def test_same_input_same_report():
@@ -369,9 +380,11 @@ def test_monitor_node_warns_what_the_model_lacks(tmp_path):
     assert json.loads(meta["discrepancy/test_1"]["selected"]) == ["sensor_delay"]
 
 
-def test_monitor_node_warns_when_no_candidate_explains_a_structured_residual():
+def test_monitor_node_warns_when_no_candidate_explains_a_structured_residual(tmp_path):
     from eha_health.nodes.graph import Graph
-    with Graph(faults=Faults(0.3, 0.4, 0.3), effects=("compressibility", "sensor_noise"), seed=5,
+    soft = tmp_path / "soft_mount.yaml"
+    soft.write_text("linkage:\n  stiffness: 5.0e6\n")      # undeclared: the monitor's link is 2e7 N/m
+    with Graph(faults=Faults(0.0, 0.0, 0.0), effects=("sensor_noise",), seed=6, params_file=str(soft),
                discrepancy=True) as g:
         r = g.run_test()
     assert r["discrepancy"].verdict == UNEXPLAINED
