@@ -113,7 +113,8 @@ def plot_diagnosis(measured: Response, diagnosis, path: str | Path):
 
 
 def plot_discrepancy(rep, path: str | Path):
-    """Residual (fitted - measured) per channel before and after augmentation, and the ranking."""
+    """Residual (fitted - measured) per channel before and after augmentation, for a rig the
+    frequency response error of both models, and the ranking."""
     from .residuals import DISPLAY_UNITS
     chans = list(rep.measured)
     fr = rep.frequency_response or []
