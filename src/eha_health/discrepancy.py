@@ -275,32 +275,39 @@ def _evaluate(model: AugmentedModel, cand: Candidate, base: Fit, anchors: list[n
     return ev, mc, best
 
 
-def _retry_from_rediagnosis(results, candidates, model: AugmentedModel, base: Fit, before: Fit,
-                            params: ModelParams, rediagnose, r_fit: Residual, r_held: Residual,
-                            rss_held_base: float, held_noise, n_eff: float, n_fit: float, settings: Settings,
-                            say) -> tuple[list, int]:
+def _rediagnosed(model: AugmentedModel, x: np.ndarray, n_base: int, rediagnose) -> tuple[np.ndarray, int]:
+    """``x`` with its base knobs identified globally with the model at ``x`` (effects included).
+
+    Returns the new knob vector and the model runs the identification took.
+    """
+    xb, spent = rediagnose(model.params_at(x)[0])
+    alt = np.array(x, float)
+    alt[:n_base] = np.clip(xb, model.lower[:n_base], model.upper[:n_base])
+    return alt, spent
+
+
+def _retry_from_rediagnosis(results, candidates, model: AugmentedModel, base: Fit, before: Fit, rediagnose,
+                            r_fit: Residual, r_held: Residual, rss_held_base: float, held_noise, n_eff: float,
+                            n_fit: float, settings: Settings, say) -> tuple[list, int]:
     """Round-1 candidates evaluated again from the base knobs re-identified with each in the model.
 
-    Only a candidate whose re-identified model lowers the fit-part residual power to the fit
-    gate is evaluated again (the others cannot pass); its new evidence replaces the old when
-    it ranks better. Returns the results (unsorted) and the model runs spent.
+    Only a candidate whose re-identified model (its knobs at their typical values) lowers the
+    fit-part residual power to the fit gate is evaluated again (the others cannot pass); its new
+    evidence replaces the old when it ranks better. Returns the results (unsorted) and the model
+    runs spent.
     """
     by_name = {c.name: c for c in candidates}
+    nb = len(base.x)
     out, runs = [], 0
     for ev, mc, best in results:
         cand = by_name[ev.name]
-        p_c = params
-        for k in cand.knobs:
-            p_c = k.apply(p_c, k.typical)
         say(f"round 1: {cand.name} -- base re-identified with it in the model")
-        xb, spent = rediagnose(p_c)
-        xb = np.clip(np.asarray(xb, float), model.lower, model.upper)
+        x, spent = _rediagnosed(mc, np.concatenate([base.x, [k.typical for k in cand.knobs]]), nb, rediagnose)
         runs += spent + 1
-        if r_fit.rss(mc.run(np.concatenate([xb, [k.typical for k in cand.knobs]]))[0]) \
-                > settings.fit_ratio * base.rss:
+        if r_fit.rss(mc.run(x)[0]) > settings.fit_ratio * base.rss:
             out.append((ev, mc, best))
             continue
-        new = _evaluate(model, cand, base, [base.x, before.x, xb], r_fit, r_held, rss_held_base,
+        new = _evaluate(model, cand, base, [base.x, before.x, x[:nb]], r_fit, r_held, rss_held_base,
                         held_noise([cand.name]), n_eff, n_fit, settings, 1)
         runs += new[1].runs
         out.append(new if _rank(new) < _rank((ev, mc, best)) else (ev, mc, best))
@@ -415,9 +422,8 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
                     and ev.fit_ratio <= settings.fit_ratio)
 
         if rnd == 1 and structured and rediagnose is not None and not passes(results[0][0]):
-            results, spent = _retry_from_rediagnosis(results, remaining, model, base, before, params, rediagnose,
-                                                     r_fit, r_held, rss_held_base, held_noise, n_eff, n_fit,
-                                                     settings, say)
+            results, spent = _retry_from_rediagnosis(results, remaining, model, base, before, rediagnose, r_fit,
+                                                     r_held, rss_held_base, held_noise, n_eff, n_fit, settings, say)
             runs += spent
             results.sort(key=_rank)
         evidence += [e for e, _, _ in results]
@@ -448,10 +454,8 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
             # the base knobs identified globally with the selected effects in the model: the local
             # path from the biased diagnosis can stop in another basin (measured: compressibility
             # 1.6 GPa with faults 0.3, 0.4, 0.3 ended at K_FSJ 0.345)
-            xb, spent = rediagnose(model.params_at(start)[0])
+            alt, spent = _rediagnosed(model, start, len(base_knobs), rediagnose)
             runs += spent
-            alt = start.copy()
-            alt[:len(base_knobs)] = np.clip(xb, model.lower[:len(base_knobs)], model.upper[:len(base_knobs)])
             c_start, c_alt = (r_final.rss(o) for o in model.run(np.vstack([start, alt])))
             start = alt if c_alt < c_start else start
         after = fit(model, r_final, start)

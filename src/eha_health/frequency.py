@@ -34,13 +34,7 @@ def _segment(n: int) -> int:
     return int(2 ** min(12, int(np.log2(max(n // 8, 2)))))
 
 
-def estimate(u, y, fs: float, min_coherence: float = 0.9, min_power: float = 1e-3,
-             nperseg: int | None = None) -> FrequencyResponse:
-    """H1 of ``y`` over ``u`` sampled at ``fs`` [Hz], where u has power and the coherence is high.
-
-    ``min_power``: keep bins whose command power is at least this share of its peak;
-    ``min_coherence``: and whose coherence is at least this.
-    """
+def _check(u, y) -> tuple[np.ndarray, np.ndarray]:
     u, y = np.asarray(u, float), np.asarray(y, float)
     if u.shape != y.shape or u.ndim != 1:
         raise ValueError(f"frequency response: command and output must be 1-D of one length, got {u.shape}, {y.shape}")
@@ -48,7 +42,22 @@ def estimate(u, y, fs: float, min_coherence: float = 0.9, min_power: float = 1e-
         raise ValueError(f"frequency response: record too short ({len(u)} samples, need >= 256)")
     if not (np.all(np.isfinite(u)) and np.all(np.isfinite(y))):
         raise ValueError("frequency response: command or output holds NaN or inf")
-    n = nperseg or _segment(len(u))
+    return u, y
+
+
+def estimate(u, y, fs: float, min_coherence: float = 0.9, min_power: float = 1e-3,
+             nperseg: int | None = None) -> FrequencyResponse:
+    """H1 of ``y`` over ``u`` sampled at ``fs`` [Hz], where u has power and the coherence is high.
+
+    ``min_power``: keep bins whose command power is at least this share of its peak;
+    ``min_coherence``: and whose coherence is at least this.
+    """
+    u, y = _check(u, y)
+    return _estimate(u, y, fs, nperseg or _segment(len(u)), min_coherence, min_power)[0]
+
+
+def _estimate(u, y, fs: float, n: int, min_coherence: float, min_power: float):
+    """The kept response, the kept-bin mask and the command's power on every Welch bin."""
     f, Puy = csd(u, y, fs=fs, nperseg=n)
     _, Puu = welch(u, fs=fs, nperseg=n)
     _, Pyy = welch(y, fs=fs, nperseg=n)
@@ -56,7 +65,7 @@ def estimate(u, y, fs: float, min_coherence: float = 0.9, min_power: float = 1e-
         H = Puy / Puu
         coh = np.abs(Puy) ** 2 / (Puu * Pyy)
     keep = (f > 0) & (Puu >= min_power * Puu.max()) & np.isfinite(coh) & (coh >= min_coherence)
-    return FrequencyResponse(f[keep], H[keep], coh[keep])
+    return FrequencyResponse(f[keep], H[keep], coh[keep]), keep, Puu
 
 
 def compare(command, measured, models: dict[str, np.ndarray], fs: float, n_bands: int = 8,
@@ -72,18 +81,13 @@ def compare(command, measured, models: dict[str, np.ndarray], fs: float, n_bands
     keys of ``models``), and ``gain_ratio`` / ``phase_error_deg`` of each model against
     the measured response.
     """
-    meas = estimate(command, measured, fs, min_coherence=min_coherence)
+    u, y = _check(command, measured)
+    n = _segment(len(u))
+    meas, keep, Puu = _estimate(u, y, fs, n, min_coherence, 1e-3)
     if len(meas.f) == 0:
         return []
-    # the model responses on the same bins (their own coherence is not a criterion: no noise)
-    n = _segment(len(np.asarray(command)))
-    _, Puu = welch(command, fs=fs, nperseg=n)
-    f_all = np.fft.rfftfreq(n, 1.0 / fs)
-    idx = np.searchsorted(f_all, meas.f)
-    Hm = {}
-    for name, y in models.items():
-        _, Puy = csd(command, y, fs=fs, nperseg=n)
-        Hm[name] = (Puy / Puu)[idx]
+    # the models on the same bins (their own coherence is not a criterion: no noise)
+    Hm = {name: csd(u, _check(u, ym)[1], fs=fs, nperseg=n)[1][keep] / Puu[keep] for name, ym in models.items()}
     # phases unwrapped along the whole kept range: a band high up can be more than half a turn off
     ph = {"measured": np.unwrap(np.angle(meas.H))}
     err = {}

@@ -284,6 +284,7 @@ class MonitorNode(Node):
             level, msg = self._level(k)
             values = {"test_id": tid}
             if rep is not None:
+                from ..discrepancy import UNEXPLAINED     # loaded with the report (lazy: node start-up)
                 values["discrepancy"] = rep.verdict
                 entry["discrepancy"] = rep
                 lacks = None
@@ -291,7 +292,7 @@ class MonitorNode(Node):
                     lacks = f"{rep.verdict} (position residual RMS {rep.before.rms['position'] * 1e6:.1f} -> " \
                             f"{rep.after.rms['position'] * 1e6:.1f} um; coefficients re-identified with it: " + \
                             ", ".join(f"{n.upper()}={rep.after.values[n]:.3f}" for n in NAMES) + ")"
-                elif rep.residual_before.structured:
+                elif rep.verdict == UNEXPLAINED:
                     # the diagnosis was fitted by a model that misses something: say so, with the evidence
                     lacks = f"{rep.verdict}; the coefficients may be biased ({rep.residual_before.evidence[0]})"
                 if lacks:
