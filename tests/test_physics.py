@@ -147,3 +147,18 @@ def test_compressibility_gives_hydraulic_resonance_on_the_step():
     r, b = simulate(params=p), simulate()
     step = FDISequence().mask("step", r.t)
     assert np.std(np.diff(r.pressure[step])) > np.std(np.diff(b.pressure[step]))
+
+
+def test_vibration_null_shift_moves_the_position_by_the_vibration_level():
+    # a P loop on an integrating jack holds zero valve current: x = x_cmd + i_null / kp, so a null
+    # that shifts by g <|a|> moves the jack by g <|a|> / kp where it accelerates, and not elsewhere
+    p, g = load("monitor"), 1e-4
+    base = simulate(params=p)
+    r = simulate(params=p.with_effects(vibration_null_shift={"enabled": True, "gain": g}))
+    seq = FDISequence()
+    acc = np.abs(np.gradient(np.gradient(base.position, base.t), base.t))
+    sine, ramp = seq.mask("sine", base.t), seq.mask("ramp", base.t)
+    shift = np.mean((r.position - base.position)[sine])
+    assert shift == pytest.approx(g * acc[sine].mean() / p.controller.kp, rel=0.15)
+    assert shift > 5e-6                       # and it is well above the 1 um scale of the check below
+    assert abs(np.mean((r.position - base.position)[ramp])) < 1e-6   # a ramp hardly accelerates

@@ -23,6 +23,7 @@ load_stiffness         change of the hinge (load) stiffness               N/m
 leakage                extra internal (cross-piston) leakage              m^3/(s Pa)
 mount_compliance       compliance in series with the link (soft mount)    m/N
 flow_asymmetry         extend/retract gain asymmetry of valve and jack    -
+vibration_null_shift   null bias k <|a|> + b0 (shift under vibration)     A s^2/m, A
 =====================  =================================================  ============
 """
 from __future__ import annotations
@@ -79,6 +80,10 @@ def _stribeck(p: ModelParams, v: float) -> ModelParams:
     return p.with_effects(stribeck={"enabled": True, "velocity": v})
 
 
+def _vibration(p: ModelParams, gain: float) -> ModelParams:
+    return p.with_effects(vibration_null_shift={"enabled": gain != 0.0, "gain": gain})
+
+
 def _mount(p: ModelParams, c: float) -> ModelParams:
     return p.updated("linkage", stiffness=1.0 / (1.0 / p.linkage.stiffness + max(c, 0.0)))
 
@@ -122,6 +127,13 @@ CANDIDATES: tuple[Candidate, ...] = (
               (Knob("asymmetry", "-", -0.5, 0.5, 0.05, 0.0,
                     lambda p, v: p.updated("hydraulics", flow_asymmetry=v),
                     doc="block sees x_s (1 + a sign x_s)"),)),
+    Candidate("vibration_null_shift", "servovalve null that moves with vibration: a null bias at rest "
+              "that shifts with the jack's mean |acceleration| (rectified by the valve), so the offset "
+              "between command and position changes with the motion",
+              (Knob("null_shift_per_accel", "A s^2/m", -2e-4, 2e-4, 2e-5, 0.0, _vibration,
+                    doc="null-bias change per m/s^2 of mean |acceleration|"),
+               Knob("rest_null_bias", "A", -2e-3, 2e-3, 2e-4, 0.0,
+                    lambda p, v: p.updated("controller", null_bias=v), doc="null bias at rest"))),
 )
 
 BY_NAME = {c.name: c for c in CANDIDATES}

@@ -4,10 +4,17 @@
 
 saturated at +/- i_max, then passed through a play (backlash-type) hysteresis
 of total width ``hyst`` [A]; the valve null bias is added last. Paper Sec. III.A.
+With the vibration null shift on, the null moves by ``vib_gain <|a|>`` [A], where
+``<|a|>`` [m/s^2] is the jack's mean absolute acceleration (state ``a_vib``, see
+:func:`vibration_level_step`).
 """
 from numba import njit
 
-from .layout import (P_GAS, P_HYST, P_IBIAS, P_IMAX, P_KD, P_KI, P_KP, S_EPREV, S_IH, S_INT)
+from .layout import (P_GAS, P_HYST, P_IBIAS, P_IMAX, P_KD, P_KI, P_KP, P_VIBGAIN, P_VIBON, P_VIBTAU,
+                     S_AVIB, S_EPREV, S_IH, S_INT, S_VF)
+
+#: Time constant [s] of the velocity filter ahead of the vibration level (~80 Hz).
+VIB_FILTER = 2e-3
 
 
 @njit(cache=True, error_model="numpy")
@@ -31,4 +38,18 @@ def servo_amplifier(p, s, x_cmd, x_meas, v_meas, dt):
     elif i < ih - half:
         ih = i + half
     s[S_IH] = ih
-    return ih + p[P_IBIAS]
+    return ih + p[P_IBIAS] + p[P_VIBON] * p[P_VIBGAIN] * s[S_AVIB]
+
+
+@njit(cache=True, error_model="numpy")
+def vibration_level_step(p, s, v, dt):
+    """Mean |acceleration| of the jack [m/s^2], given its new velocity ``v`` [m/s].
+
+    The acceleration is that of the velocity seen through a first-order filter of
+    ``VIB_FILTER`` [s] (the valve body feels the structure's vibration, not the
+    fine-step detail of impacts), then averaged: tau d<|a|>/dt = |a| - <|a|>.
+    """
+    if p[P_VIBON] > 0.0:
+        dv = dt / (VIB_FILTER + dt) * (v - s[S_VF])
+        s[S_VF] += dv
+        s[S_AVIB] += dt / max(p[P_VIBTAU], dt) * (abs(dv) / dt - s[S_AVIB])

@@ -57,7 +57,7 @@ def effect_floor(n: int = 6, seed: int = 2025, progress=None) -> dict:
             model = AugmentedModel(mon, FAULT_KNOBS + cand.knobs, rec)
             res = Residual(rec)
             g = knob_grid(cand.knobs[0], 48)
-            G = np.repeat(np.concatenate([f.as_tuple(), [k.typical for k in cand.knobs]])[None], len(g), axis=0)
+            G = np.repeat(np.concatenate([f.as_tuple(), [k.off for k in cand.knobs]])[None], len(g), axis=0)
             G[:, len(FAULT_KNOBS)] = g
             x0 = G[int(np.argmin([res.rss(o) for o in model.run(G)]))]
             rms = res.rms(fit(model, res, x0, max_nfev=40).output)
@@ -99,6 +99,7 @@ EFFECTS: tuple[tuple[str, object], ...] = (
     ("supply_pressure", lambda p: p.updated("hydraulics", supply_pressure=14e6)),
     ("mount_compliance", lambda p: p.updated("linkage", stiffness=5e6)),
     ("flow_asymmetry", lambda p: p.updated("hydraulics", flow_asymmetry=0.1)),
+    ("vibration_null_shift", lambda p: p.with_effects(vibration_null_shift={"enabled": True, "gain": 1e-4})),
 )
 FAULT_SETS = (Faults(0.0, 0.0, 0.0), Faults(0.4, 0.5, 0.0), Faults(0.3, 0.4, 0.3))
 
@@ -148,12 +149,12 @@ def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None) -> d
 
 
 def format_synthetic(res: dict) -> str:
-    lines = [f"{'effect':17s} {'faults (gm,fsj,bkl)':20s} {'ranked first':17s} {'selected':17s} "
+    lines = [f"{'effect':21s} {'faults (gm,fsj,bkl)':20s} {'ranked first':21s} {'selected':21s} "
              f"{'pos RMS um before->after':>25s} {'max|dK| before->after':>22s} {'time s':>7s}"]
     for c in res["cases"]:
         f = ",".join(f"{v:.2f}" for v in c["faults"].values())
-        lines.append(f"{c['effect'] or '(noise only)':17s} {f:20s} {c['ranked_first'] or '-':17s} "
-                     f"{','.join(c['selected']) or '-':17s} {c['rms_before'] * 1e6:11.2f} -> {c['rms_after'] * 1e6:8.2f}"
+        lines.append(f"{c['effect'] or '(noise only)':21s} {f:20s} {c['ranked_first'] or '-':21s} "
+                     f"{','.join(c['selected']) or '-':21s} {c['rms_before'] * 1e6:11.2f} -> {c['rms_after'] * 1e6:8.2f}"
                      f"   {c['err_before']:9.4f} -> {c['err_after']:7.4f} {c['wall_time_s']:7.1f}")
     pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"
     lines.append(f"true effect ranked first: {pct(res['ranked_first_share'])} (target >= 90 %); "

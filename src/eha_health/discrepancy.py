@@ -238,13 +238,13 @@ def _evaluate(model: AugmentedModel, cand: Candidate, base: Fit, anchors: list[n
     outs = mc.run(X)
     S = np.column_stack([(r_fit(o) - base.residual) / (k.typical - k.off) for o, k in zip(outs, cand.knobs)])
     share = projection_share(base.jacobian, S, base.residual)
-    # grid scan of the first knob with the base knobs held at each anchor (the current fit, and
-    # the whole-record fit: on a split record the base knobs may have absorbed the effect
-    # differently), then local fits from the best distinct points
+    # grid scan of the first knob (any further knob absent) with the base knobs held at each anchor
+    # (the current fit, and the whole-record fit: on a split record the base knobs may have absorbed
+    # the effect differently), then local fits from the best distinct points
     g = knob_grid(cand.knobs[0], settings.grid)
     rows = []
     for a in anchors:
-        G = np.repeat(np.concatenate([a, [k.typical for k in cand.knobs]])[None], len(g), axis=0)
+        G = np.repeat(np.concatenate([a, [k.off for k in cand.knobs]])[None], len(g), axis=0)
         G[:, nb] = g
         rows.append(G)
     G = np.vstack(rows)
@@ -291,7 +291,8 @@ def _retry_from_rediagnosis(results, candidates, model: AugmentedModel, base: Fi
                             n_fit: float, settings: Settings, say) -> tuple[list, int]:
     """Round-1 candidates evaluated again from the base knobs re-identified with each in the model.
 
-    Only a candidate whose re-identified model (its knobs at their typical values) lowers the
+    Only a candidate whose re-identified model (its first knob at its typical value, any other
+    absent) lowers the
     fit-part residual power to the fit gate is evaluated again (the others cannot pass); its new
     evidence replaces the old when it ranks better. Returns the results (unsorted) and the model
     runs spent.
@@ -302,7 +303,8 @@ def _retry_from_rediagnosis(results, candidates, model: AugmentedModel, base: Fi
     for ev, mc, best in results:
         cand = by_name[ev.name]
         say(f"round 1: {cand.name} -- base re-identified with it in the model")
-        x, spent = _rediagnosed(mc, np.concatenate([base.x, [k.typical for k in cand.knobs]]), nb, rediagnose)
+        probe = [k.typical if j == 0 else k.off for j, k in enumerate(cand.knobs)]
+        x, spent = _rediagnosed(mc, np.concatenate([base.x, probe]), nb, rediagnose)
         runs += spent + 1
         if r_fit.rss(mc.run(x)[0]) > settings.fit_ratio * base.rss:
             out.append((ev, mc, best))

@@ -13,7 +13,7 @@ outputs of sample k are the values at t_k, before the command cmd[k] acts.
 import numpy as np
 from numba import njit, prange
 
-from .controller import servo_amplifier
+from .controller import servo_amplifier, vibration_level_step
 from .jack import jack_step
 from .layout import (N_OUT, N_S, O_CMD, O_CUR, O_P12, O_POS, O_VEL, O_XJ, O_XS, P_DELAY, P_DT,
                      P_MODEL, P_NSUB, P_XBIAS, S_IV, S_P12, S_VJ, S_VM, S_XJ, S_XM, S_XS)
@@ -67,6 +67,7 @@ def run(p, s, cmd, load, noise, dbuf, out):
                 xs = first_stage_monitor(p, s, i_v, dt)
             f_link = link_force(p, s)
             jack_step(p, s, xs, -f_link, dt)
+            vibration_level_step(p, s, s[S_VJ], dt)
             surface_step(p, s, f_link - f_ext, dt)
             transducer_step(p, s, dbuf)
 

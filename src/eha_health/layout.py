@@ -6,7 +6,7 @@ typed dataclasses (:mod:`eha_health.params`), so the kernels never see a
 magic number and never depend on Python objects.
 
 Adding a parameter: append a name to ``P_NAMES`` and an index constant with
-the same position (``tests/test_layout.py`` checks they agree).
+the same position (``tests/test_params.py`` checks they agree).
 """
 
 P_NAMES = (
@@ -36,6 +36,8 @@ P_NAMES = (
     "f_hinge",
     # extend/retract flow-gain asymmetry of the valve-jack fluid block
     "flow_asym",
+    # vibration-rectified valve null shift: switch, current per mean |acceleration|, averaging time
+    "vib_on", "vib_gain", "vib_tau",
 )
 
 # --- parameter indices (keep in the order of P_NAMES) ---
@@ -53,6 +55,7 @@ P_STRIB, P_VSTRIB = 54, 55
 P_VSMAX = 56
 P_FHINGE = 57
 P_FASYM = 58
+P_VIBON, P_VIBGAIN, P_VIBTAU = 59, 60, 61
 N_P = len(P_NAMES)
 
 MODEL_REFERENCE = 0.0
@@ -60,10 +63,10 @@ MODEL_MONITOR = 1.0
 
 S_NAMES = (
     "t", "xs", "theta", "omega", "q", "y", "yd", "xj", "vj", "xu", "vu",
-    "p12", "integ", "e_prev", "i_h", "d_idx", "i_v", "x_meas", "v_meas",
+    "p12", "integ", "e_prev", "i_h", "d_idx", "i_v", "x_meas", "v_meas", "a_vib", "v_filt",
 )
 (S_T, S_XS, S_TH, S_OM, S_Q, S_Y, S_YD, S_XJ, S_VJ, S_XU, S_VU,
- S_P12, S_INT, S_EPREV, S_IH, S_DIDX, S_IV, S_XM, S_VM) = range(19)
+ S_P12, S_INT, S_EPREV, S_IH, S_DIDX, S_IV, S_XM, S_VM, S_AVIB, S_VF) = range(21)
 N_S = len(S_NAMES)
 
 # Columns the kernel writes, one row per output sample.

@@ -245,6 +245,20 @@ class CommandNoise:
 
 
 @dataclass(frozen=True)
+class VibrationNullShift:
+    """Servovalve null that moves with vibration: i_null += gain <|a|>.
+
+    <|a|> is the jack's absolute acceleration averaged over ``time_constant`` (first
+    order): vibration rectified by the valve's nonlinear first stage shifts its null, so a
+    loop without integral action holds the jack off the command by a vibration-dependent
+    amount. Servovalve specifications quote it as null shift under vibration.
+    """
+    enabled: bool
+    gain: float = _f("A s^2/m", "null-bias current per unit mean |acceleration|")
+    time_constant: float = _pos("s", "averaging time of the vibration level")
+
+
+@dataclass(frozen=True)
 class Effects:
     """Optional effects the paper's model lacks; all off by default."""
     compressibility: Compressibility
@@ -254,6 +268,7 @@ class Effects:
     sensor_calibration: SensorCalibration
     stribeck: Stribeck
     command_noise: CommandNoise
+    vibration_null_shift: VibrationNullShift
 
 
 #: Names of the optional effects, as accepted by ``with_effect_names`` and the CLI.
@@ -487,4 +502,7 @@ def pack(params: ModelParams, faults: Faults = Faults()) -> np.ndarray:
         p[L.P_XBIAS], p[L.P_XGAIN] = e.sensor_calibration.bias, 1.0 + e.sensor_calibration.gain_error
     if e.stribeck.enabled:
         p[L.P_STRIB], p[L.P_VSTRIB] = 1.0, e.stribeck.velocity
+    if e.vibration_null_shift.enabled:
+        v = e.vibration_null_shift
+        p[L.P_VIBON], p[L.P_VIBGAIN], p[L.P_VIBTAU] = 1.0, v.gain, v.time_constant
     return p
