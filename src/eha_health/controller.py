@@ -10,11 +10,8 @@ With the vibration null shift on, the null moves by ``vib_gain <|a|>`` [A], wher
 """
 from numba import njit
 
-from .layout import (P_GAS, P_HYST, P_IBIAS, P_IMAX, P_KD, P_KI, P_KP, P_VIBGAIN, P_VIBON, P_VIBTAU,
-                     S_AVIB, S_EPREV, S_IH, S_INT, S_VF)
-
-#: Time constant [s] of the velocity filter ahead of the vibration level (~80 Hz).
-VIB_FILTER = 2e-3
+from .layout import (P_GAS, P_HYST, P_IBIAS, P_IMAX, P_KD, P_KI, P_KP, P_VIBFILT, P_VIBGAIN, P_VIBON,
+                     P_VIBTAU, S_AVIB, S_EPREV, S_IH, S_INT, S_VF)
 
 
 @njit(cache=True, error_model="numpy")
@@ -46,10 +43,10 @@ def vibration_level_step(p, s, v, dt):
     """Mean |acceleration| of the jack [m/s^2], given its new velocity ``v`` [m/s].
 
     The acceleration is that of the velocity seen through a first-order filter of
-    ``VIB_FILTER`` [s] (the valve body feels the structure's vibration, not the
-    fine-step detail of impacts), then averaged: tau d<|a|>/dt = |a| - <|a|>.
+    time constant ``vib_filter`` [s] (the valve body feels the structure's vibration,
+    not the fine-step detail of impacts), then averaged: tau d<|a|>/dt = |a| - <|a|>.
     """
     if p[P_VIBON] > 0.0:
-        dv = dt / (VIB_FILTER + dt) * (v - s[S_VF])
+        dv = dt / (p[P_VIBFILT] + dt) * (v - s[S_VF])
         s[S_VF] += dv
         s[S_AVIB] += dt / max(p[P_VIBTAU], dt) * (abs(dv) / dt - s[S_AVIB])

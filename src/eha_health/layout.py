@@ -36,8 +36,9 @@ P_NAMES = (
     "f_hinge",
     # extend/retract flow-gain asymmetry of the valve-jack fluid block
     "flow_asym",
-    # vibration-rectified valve null shift: switch, current per mean |acceleration|, averaging time
-    "vib_on", "vib_gain", "vib_tau",
+    # vibration-rectified valve null shift: switch, current per mean |acceleration|, averaging time,
+    # velocity filter ahead of the acceleration
+    "vib_on", "vib_gain", "vib_tau", "vib_filter",
 )
 
 # --- parameter indices (keep in the order of P_NAMES) ---
@@ -55,7 +56,7 @@ P_STRIB, P_VSTRIB = 54, 55
 P_VSMAX = 56
 P_FHINGE = 57
 P_FASYM = 58
-P_VIBON, P_VIBGAIN, P_VIBTAU = 59, 60, 61
+P_VIBON, P_VIBGAIN, P_VIBTAU, P_VIBFILT = 59, 60, 61, 62
 N_P = len(P_NAMES)
 
 MODEL_REFERENCE = 0.0

@@ -256,6 +256,8 @@ class VibrationNullShift:
     enabled: bool
     gain: float = _f("A s^2/m", "null-bias current per unit mean |acceleration|")
     time_constant: float = _pos("s", "averaging time of the vibration level")
+    velocity_filter: float = _pos("s", "first-order velocity filter ahead of the acceleration (bandwidth of "
+                                  "the vibration the valve feels)")
 
 
 @dataclass(frozen=True)
@@ -505,4 +507,5 @@ def pack(params: ModelParams, faults: Faults = Faults()) -> np.ndarray:
     if e.vibration_null_shift.enabled:
         v = e.vibration_null_shift
         p[L.P_VIBON], p[L.P_VIBGAIN], p[L.P_VIBTAU] = 1.0, v.gain, v.time_constant
+        p[L.P_VIBFILT] = v.velocity_filter
     return p
