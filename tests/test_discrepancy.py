@@ -14,7 +14,7 @@ from eha_health.candidates import BY_NAME, CANDIDATES
 from eha_health.discrepancy import NO_MISSING_EFFECT, UNEXPLAINED, analyse_fdi_test, fdi_settings, projection_share
 from eha_health.importer import ImportError_, import_text
 from eha_health.params import Faults, load
-from eha_health.residuals import analyse, ljung_box, noise_level
+from eha_health.residuals import analyse, ljung_box, noise_level, rest_noise_level
 
 ROOT = Path(__file__).resolve().parents[1]
 BAGS = ROOT / "bags"
@@ -34,6 +34,23 @@ def test_noise_level_and_whiteness_on_known_signals():
     _, p_white, _ = ljung_box(rng.standard_normal(4000), 20)
     _, p_col, _ = ljung_box(np.sin(2 * np.pi * 7.0 * t[:4000]), 20)
     assert p_white > 0.01 and p_col < 1e-6
+
+
+def test_coloured_noise_is_measured_where_the_command_rests():
+    # a logger's interference is coloured: second differences see only its top, the rest periods
+    # (command still, here 3 s before and after a 2 Hz sine) show all of it
+    from scipy.signal import butter, sosfiltfilt
+    rng = np.random.default_rng(3)
+    t = np.arange(11000) / 1000.0
+    cmd = np.where((t >= 3.0) & (t < 8.0), 2e-3 * np.sin(2 * np.pi * 2.0 * (t - 3.0)), 0.0)
+    cmd = cmd + 5e-6 * rng.standard_normal(len(t))          # the command channel's own interference
+    n = sosfiltfilt(butter(2, 30.0, fs=1000.0, output="sos"), rng.standard_normal(len(t)))
+    y = 0.9 * cmd + 20e-6 * n / n.std()
+    assert noise_level(y) < 0.5 * 20e-6
+    assert rest_noise_level(y, cmd, 1000.0) == pytest.approx(20e-6, rel=0.1)
+    assert rest_noise_level(y, cmd + t, 1000.0) == 0.0        # never at rest: no estimate
+    a = analyse(t, {"position": y}, {"position": 0.9 * cmd}, noise={"position": rest_noise_level(y, cmd, 1000.0)})
+    assert a.channels["position"].noise_sd == pytest.approx(20e-6, rel=0.1) and a.verdict == "noise"
 
 
 def test_analysis_tells_noise_from_structure():
@@ -361,6 +378,9 @@ def test_real_rig_import_and_loop(tmp_path):
     # the calibrated model leaves a structured residual (offset, gain error above the fit band):
     # whatever the loop makes of it, it must not be reported as noise
     assert out["residual_before"]["verdict"] == "structured" and out["verdict"] != NO_MISSING_EFFECT
+    # the position channel's noise, measured where the command rests (0-5 s, 59.4-61.5 s), is
+    # coloured logger interference of ~25 um, well above its white part (~11 um)
+    assert 20e-6 < out["residual_before"]["channels"]["position"]["noise_sd"] < 30e-6
     # the offset between command and position is ~85 um at rest and shrinks as the chirp speeds up:
     # a valve null that shifts with the vibration level. It is found, and it predicts the held-out
     # part (up to 20 Hz, then rest) from the first 70 % (measured x0.66; the 50 % target is missed)

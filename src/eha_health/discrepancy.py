@@ -54,7 +54,7 @@ from .candidates import CANDIDATES, Candidate
 from .fitness import CHANNEL_COLUMNS
 from .identify import _autocorr_inflation
 from .params import ModelParams, load
-from .residuals import DISPLAY_UNITS, ResidualAnalysis, analyse
+from .residuals import DISPLAY_UNITS, ResidualAnalysis, analyse, rest_noise_level
 
 
 #: Verdict when the residual is noise (within noise and the model's floor, or white).
@@ -77,6 +77,8 @@ class Settings:
     max_nfev: int = 30                 # iterations of each local fit
     floor: dict = field(default_factory=dict)   # per-channel residual floor of the model [SI]
     effect_floor: dict = field(default_factory=dict)  # {candidate: per-channel floor} once it is added
+    rest_noise: bool = False           # noise also measured where the command rests (a rig's coloured
+                                       # interference; residuals.rest_noise_level)
 
     def floor_with(self, effects) -> dict[str, float]:
         """Per-channel floor [SI] of the model holding ``effects``: its largest known model-form error."""
@@ -382,7 +384,10 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     say("fitting the model as it stands")
     before = fit(model, r_final, x)
     base = fit(model, r_fit, before.x)
-    res_before = analyse(record.t, record.channels, _channels(record, before.output), segments, settings.floor)
+    noise = ({c: rest_noise_level(y, record.command, record.sample_rate) for c, y in record.channels.items()}
+             if settings.rest_noise else None)
+    res_before = analyse(record.t, record.channels, _channels(record, before.output), segments, settings.floor,
+                         noise=noise)
     infl = _autocorr_inflation(before.residual, len(r_final.channels))
     out_base = base.output      # the fit-part model over the whole record
     state_before = _state(before, r_all, r_held, out_base, [], infl, truth)
@@ -445,7 +450,7 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
         runs -= model.runs       # counted above; the model goes on counting from here
         remaining = [c for c in remaining if c.name != ev.name]
         res = analyse(record.t, record.channels, _channels(record, best.output), segments,
-                      settings.floor_with(selected))
+                      settings.floor_with(selected), noise=noise)
         structured = res.structured
         say(f"selected {ev.name}; residual now {res.verdict}")
 
@@ -462,7 +467,7 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
             start = alt if c_alt < c_start else start
         after = fit(model, r_final, start)
     res_after = analyse(record.t, record.channels, _channels(record, after.output), segments,
-                        settings.floor_with(selected)) \
+                        settings.floor_with(selected), noise=noise) \
         if selected else res_before
     infl = _autocorr_inflation(after.residual, len(r_final.channels))
     state_after = _state(after, r_all, r_held, out_base, selected, infl, truth)

@@ -9,6 +9,12 @@ smooth signal sampled at 1 kHz barely contributes, so
 
     sigma_hat = 1.4826 MAD(diff2(y)) / sqrt(6)                       [channel unit]
 
+A rig's noise is often not white: electrical interference common to the logger's
+channels is coloured, and second differences see only its high-frequency part.
+Where the record holds rest periods (the command still for a second or more),
+:func:`rest_noise_level` measures the channel's whole-band fluctuation there, and
+the larger of the two estimates is the noise.
+
 A channel is *structured* when its residual is both larger than noise and the
 model's known floor allow (``rms > factor * sqrt(sigma_hat^2 + floor^2)``) and
 not white (Ljung-Box p < ``alpha``); otherwise it is *explained by noise*.
@@ -31,6 +37,40 @@ def noise_level(y: np.ndarray) -> float:
     if len(d2) < 10:
         return 0.0
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
+
+
+def rest_noise_level(y: np.ndarray, command: np.ndarray, rate: float, min_rest_s: float = 1.0,
+                     settle_s: float = 0.5, still: float = 0.015) -> float:
+    """Standard deviation of ``y`` [its unit] where the command rests, or 0 without such periods.
+
+    Rest: the command's standard deviation over 0.2 s windows is below ``still`` times its
+    standard deviation over the record; each rest run loses its first ``settle_s`` [s] (the
+    response settles) and counts if at least ``min_rest_s`` [s] remain. Per run, ``y`` about its
+    linear trend; pooled over the runs.
+    """
+    y, u = np.asarray(y, float), np.asarray(command, float)
+    w = max(int(round(0.2 * rate)), 2)
+    if len(u) < 2 * w or np.std(u) <= 0:
+        return 0.0
+    c = np.cumsum(np.concatenate([[0.0], u]))
+    c2 = np.cumsum(np.concatenate([[0.0], u * u]))
+    m = (c[w:] - c[:-w]) / w
+    sd = np.sqrt(np.maximum((c2[w:] - c2[:-w]) / w - m * m, 0.0))
+    quiet = np.zeros(len(u), bool)
+    for i in np.flatnonzero(sd < still * np.std(u)):
+        quiet[i:i + w] = True          # every sample of a still window rests
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], quiet.astype(int), [0]])))
+    ss, n = 0.0, 0
+    skip, need = int(round(settle_s * rate)), int(round(min_rest_s * rate))
+    for a, b in zip(edges[::2], edges[1::2]):
+        a += skip if a > 0 else 0      # a record that starts at rest has nothing to settle from
+        if b - a < need:
+            continue
+        seg = y[a:b]
+        k = np.arange(len(seg))
+        seg = seg - np.polyval(np.polyfit(k, seg, 1), k)
+        ss, n = ss + float(seg @ seg), n + len(seg)
+    return float(np.sqrt(ss / n)) if n else 0.0
 
 
 def ljung_box(r: np.ndarray, lags: int) -> tuple[float, float, np.ndarray]:
@@ -94,12 +134,15 @@ class ResidualAnalysis:
 
 def analyse(t: np.ndarray, measured: dict[str, np.ndarray], fitted: dict[str, np.ndarray],
             segments: dict[str, np.ndarray] | None = None, floor: dict[str, float] | None = None,
-            lags: int = 20, factor: float = 1.5, alpha: float = 0.01) -> ResidualAnalysis:
+            lags: int = 20, factor: float = 1.5, alpha: float = 0.01,
+            noise: dict[str, float] | None = None) -> ResidualAnalysis:
     """Analyse ``fitted - measured`` per channel (SI arrays on the time base ``t`` [s]).
 
     ``segments`` maps a segment name to a boolean sample mask; ``floor`` gives the
     residual RMS the model leaves even on data without missing effects (its own
-    model-form error, per channel; 0 when unknown).
+    model-form error, per channel; 0 when unknown); ``noise`` a per-channel noise level
+    measured elsewhere (e.g. :func:`rest_noise_level`), used where it exceeds the
+    second-difference estimate.
     """
     rate = 1.0 / float(np.median(np.diff(t)))
     floor = floor or {}
@@ -107,7 +150,7 @@ def analyse(t: np.ndarray, measured: dict[str, np.ndarray], fitted: dict[str, np
     for c, y in measured.items():
         r = np.asarray(fitted[c], float) - np.asarray(y, float)
         rms = float(np.sqrt(np.mean(r ** 2)))
-        sd = noise_level(y)
+        sd = max(noise_level(y), float((noise or {}).get(c, 0.0)))
         fl = float(floor.get(c, 0.0))
         q, p, rho = ljung_box(r, lags)
         f_pk, share = spectrum_peak(r, rate)
