@@ -56,9 +56,8 @@ def rest_noise_level(y: np.ndarray, command: np.ndarray, rate: float, min_rest_s
     c2 = np.cumsum(np.concatenate([[0.0], u * u]))
     m = (c[w:] - c[:-w]) / w
     sd = np.sqrt(np.maximum((c2[w:] - c2[:-w]) / w - m * m, 0.0))
-    quiet = np.zeros(len(u), bool)
-    for i in np.flatnonzero(sd < still * np.std(u)):
-        quiet[i:i + w] = True          # every sample of a still window rests
+    # every sample of a still window rests
+    quiet = np.convolve((sd < still * np.std(u)).astype(float), np.ones(w))[:len(u)] > 0.5
     edges = np.flatnonzero(np.diff(np.concatenate([[0], quiet.astype(int), [0]])))
     ss, n = 0.0, 0
     skip, need = int(round(settle_s * rate)), int(round(min_rest_s * rate))
