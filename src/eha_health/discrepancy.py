@@ -294,9 +294,8 @@ def _retry_from_rediagnosis(results, candidates, model: AugmentedModel, base: Fi
     """Round-1 candidates evaluated again from the base knobs re-identified with each in the model.
 
     Only a candidate whose re-identified model (its first knob at its typical value, any other
-    absent) lowers the
-    fit-part residual power to the fit gate is evaluated again (the others cannot pass); its new
-    evidence replaces the old when it ranks better. Returns the results (unsorted) and the model
+    absent) lowers the fit-part residual power to the fit gate is evaluated again (the others
+    cannot pass); its new evidence replaces the old when it ranks better. Returns the results (unsorted) and the model
     runs spent.
     """
     by_name = {c.name: c for c in candidates}

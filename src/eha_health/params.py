@@ -249,9 +249,10 @@ class VibrationNullShift:
     """Servovalve null that moves with vibration: i_null += gain <|a|>.
 
     <|a|> is the jack's absolute acceleration averaged over ``time_constant`` (first
-    order): vibration rectified by the valve's nonlinear first stage shifts its null, so a
-    loop without integral action holds the jack off the command by a vibration-dependent
-    amount. Servovalve specifications quote it as null shift under vibration.
+    order). A valve's null can shift under vibration (servovalve specifications list it
+    beside null shift with pressure and temperature; one cause is vibration rectified by a
+    nonlinear first stage); a loop without integral action then holds the jack off the
+    command by a vibration-dependent amount. Found on a real rig (docs/discrepancy.md).
     """
     enabled: bool
     gain: float = _f("A s^2/m", "null-bias current per unit mean |acceleration|")
