@@ -7,6 +7,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
 
 from .model import simulate  # noqa: E402
 from .params import Faults, ModelParams  # noqa: E402
@@ -113,8 +114,8 @@ def plot_diagnosis(measured: Response, diagnosis, path: str | Path):
 
 
 def plot_discrepancy(rep, path: str | Path):
-    """Residual (fitted - measured) per channel before and after augmentation, for a rig the
-    frequency response error of both models, and the ranking."""
+    """Residual (fitted - measured) per channel before and after augmentation with the measured
+    noise band, for a rig the frequency response error of both models, and the ranking."""
     from .residuals import DISPLAY_UNITS
     chans = list(rep.measured)
     fr = rep.frequency_response or []
@@ -126,6 +127,16 @@ def plot_discrepancy(rep, path: str | Path):
                 label=f"before: RMS {rep.before.rms[c] * k:.3g} {unit}")
         ax.plot(rep.t, (rep.fitted_after[c] - rep.measured[c]) * k, lw=0.7,
                 label=f"after ({', '.join(rep.selected) or 'unchanged'}): RMS {rep.after.rms[c] * k:.3g} {unit}")
+        # the moving mean (1 % of the record) shows slow structure (an offset) under the noise
+        w = max(len(rep.t) // 100, 1)
+        span = w * float(np.median(np.diff(rep.t)))
+        for key, col in (("before", "navy"), ("after", "saddlebrown")):
+            r = (getattr(rep, f"fitted_{key}")[c] - rep.measured[c]) * k
+            ax.plot(rep.t, np.convolve(r, np.ones(w) / w, mode="same"), lw=1.2, color=col,
+                    label=f"{key}: moving mean over {span:.3g} s")
+        sd = rep.residual_before.channels[c].noise_sd * k if c in rep.residual_before.channels else 0.0
+        if sd > 0:
+            ax.axhspan(-sd, sd, color="0.3", alpha=0.25, lw=0, zorder=3, label=f"measured noise +/- {sd:.3g} {unit}")
         ax.axvline(rep.split_time_s, color="0.5", ls=":", lw=1)
         ax.set_ylabel(f"{c} residual [{unit}]")
         ax.grid(alpha=0.3)
