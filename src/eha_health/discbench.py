@@ -44,7 +44,7 @@ def effect_floor(n: int = 6, seed: int = 2025, progress=None) -> dict:
     """
     from .augment import FAULT_KNOBS, AugmentedModel, Record, Residual, fit
     from .candidates import BY_NAME
-    from .discrepancy import knob_grid
+    from .discrepancy import candidate_grid
     rng = np.random.default_rng(seed)
     ref, mon = load("reference"), load("monitor")
     out = {}
@@ -56,9 +56,7 @@ def effect_floor(n: int = 6, seed: int = 2025, progress=None) -> dict:
             rec = Record.from_response(simulate(params=make(ref), faults=f))
             model = AugmentedModel(mon, FAULT_KNOBS + cand.knobs, rec)
             res = Residual(rec)
-            g = knob_grid(cand.knobs[0], 48)
-            G = np.repeat(np.concatenate([f.as_tuple(), [k.off for k in cand.knobs]])[None], len(g), axis=0)
-            G[:, len(FAULT_KNOBS)] = g
+            G = candidate_grid(np.array(f.as_tuple()), cand, 48)
             x0 = G[int(np.argmin([res.rss(o) for o in model.run(G)]))]
             rms = res.rms(fit(model, res, x0, max_nfev=40).output)
             rows.append([rms[c] for c in CHANNELS])

@@ -172,6 +172,14 @@ def knob_grid(k: Knob, n: int) -> np.ndarray:
     return np.linspace(k.lo, k.hi, n)
 
 
+def candidate_grid(anchor: np.ndarray, cand: Candidate, n: int) -> np.ndarray:
+    """Rows ``anchor + candidate knobs``: the first knob over :func:`knob_grid`, any further knob off."""
+    g = knob_grid(cand.knobs[0], n)
+    G = np.repeat(np.concatenate([anchor, [k.off for k in cand.knobs]])[None], len(g), axis=0)
+    G[:, len(anchor)] = g
+    return G
+
+
 def _rescan(model: AugmentedModel, residual: Residual, start: Fit, n_base: int,
             factors=np.geomspace(0.6, 1.6, 17)) -> np.ndarray:
     """Before the final fit: each effect knob scanned over x0.6-1.6 of its value, the others held.
@@ -243,13 +251,7 @@ def _evaluate(model: AugmentedModel, cand: Candidate, base: Fit, anchors: list[n
     # grid scan of the first knob (any further knob absent) with the base knobs held at each anchor
     # (the current fit, and the whole-record fit: on a split record the base knobs may have absorbed
     # the effect differently), then local fits from the best distinct points
-    g = knob_grid(cand.knobs[0], settings.grid)
-    rows = []
-    for a in anchors:
-        G = np.repeat(np.concatenate([a, [k.off for k in cand.knobs]])[None], len(g), axis=0)
-        G[:, nb] = g
-        rows.append(G)
-    G = np.vstack(rows)
+    G = np.vstack([candidate_grid(a, cand, settings.grid) for a in anchors])
     costs = np.array([r_fit.rss(o) for o in mc.run(G)])
     starts: list[np.ndarray] = []
     for i in np.argsort(costs):
@@ -295,8 +297,8 @@ def _retry_from_rediagnosis(results, candidates, model: AugmentedModel, base: Fi
 
     Only a candidate whose re-identified model (its first knob at its typical value, any other
     absent) lowers the fit-part residual power to the fit gate is evaluated again (the others
-    cannot pass); its new evidence replaces the old when it ranks better. Returns the results (unsorted) and the model
-    runs spent.
+    cannot pass); its new evidence replaces the old when it ranks better. Returns the results
+    (unsorted) and the model runs spent.
     """
     by_name = {c.name: c for c in candidates}
     nb = len(base.x)

@@ -123,16 +123,16 @@ def plot_discrepancy(rep, path: str | Path):
     fig, axes = plt.subplots(rows, 1, figsize=(10, 2.3 * rows + 0.5))
     for ax, c in zip(axes, chans):
         k, unit = DISPLAY_UNITS[c]
-        ax.plot(rep.t, (rep.fitted_before[c] - rep.measured[c]) * k, lw=0.7,
-                label=f"before: RMS {rep.before.rms[c] * k:.3g} {unit}")
-        ax.plot(rep.t, (rep.fitted_after[c] - rep.measured[c]) * k, lw=0.7,
-                label=f"after ({', '.join(rep.selected) or 'unchanged'}): RMS {rep.after.rms[c] * k:.3g} {unit}")
         # the moving mean (1 % of the record) shows slow structure (an offset) under the noise
         w = max(len(rep.t) // 100, 1)
         span = w * float(np.median(np.diff(rep.t)))
-        for key, col in (("before", "navy"), ("after", "saddlebrown")):
-            r = (getattr(rep, f"fitted_{key}")[c] - rep.measured[c]) * k
-            ax.plot(rep.t, np.convolve(r, np.ones(w) / w, mode="same"), lw=1.2, color=col,
+        states = (("before", "before", rep.fitted_before, rep.before, "navy"),
+                  ("after", f"after ({', '.join(rep.selected) or 'unchanged'})", rep.fitted_after, rep.after,
+                   "saddlebrown"))
+        for key, name, fitted, state, col in states:
+            r = (fitted[c] - rep.measured[c]) * k
+            ax.plot(rep.t, r, lw=0.7, label=f"{name}: RMS {state.rms[c] * k:.3g} {unit}")
+            ax.plot(rep.t, np.convolve(r, np.ones(w) / w, mode="same"), lw=1.2, color=col, zorder=2.5,
                     label=f"{key}: moving mean over {span:.3g} s")
         sd = rep.residual_before.channels[c].noise_sd * k if c in rep.residual_before.channels else 0.0
         if sd > 0:
