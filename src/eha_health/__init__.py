@@ -9,5 +9,14 @@ from .params import Faults, ModelParams, load
 from .response import Response
 from .sequence import FDISequence
 
-__all__ = ["Faults", "FDISequence", "ModelParams", "Plant", "Response", "load", "simulate", "simulate_batch"]
+__all__ = ["Faults", "FDISequence", "ModelParams", "Plant", "Response", "diagnose", "load", "simulate",
+           "simulate_batch"]
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    # identification pulls in scipy.optimize and pymoo: loaded on first use, not with the physics
+    if name == "diagnose":
+        from .identify import diagnose
+        return diagnose
+    raise AttributeError(f"module 'eha_health' has no attribute {name!r}")
