@@ -48,10 +48,10 @@ setup(
     entry_points={
         'console_scripts': [
             'eha-health = eha_health.cli:main',
-            'eha-plant = eha_health.nodes.plant:main',
-            'eha-command = eha_health.nodes.command:main',
-            'eha-monitor = eha_health.nodes.monitor:main',
-            'eha-replay = eha_health.nodes.replay:main',
+            'eha-plant = eha_health.ros.plant:main',
+            'eha-command = eha_health.ros.command:main',
+            'eha-monitor = eha_health.ros.monitor:main',
+            'eha-replay = eha_health.ros.replay:main',
         ],
     },
     zip_safe=True,

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from eha_health import Faults, simulate
-from eha_health.calibrate import calibrate
-from eha_health.signatures import Detector, signatures
+from eha_health.identification.calibrate import calibrate
+from eha_health.identification.signatures import Detector, signatures
 
 
 @pytest.fixture(scope="module")

@@ -9,12 +9,13 @@ import pytest
 import yaml
 
 from eha_health import simulate
-from eha_health.augment import FAULT_KNOBS, AugmentedModel, Record, Residual, fit
-from eha_health.candidates import BY_NAME, CANDIDATES
-from eha_health.discrepancy import NO_MISSING_EFFECT, UNEXPLAINED, analyse_fdi_test, fdi_settings, projection_share
-from eha_health.importer import ImportError_, import_text
-from eha_health.params import Faults, load
-from eha_health.residuals import analyse, ljung_box, noise_level, rest_noise_level
+from eha_health.identification.problem import FAULT_KNOBS, AugmentedModel, Record, Residual, fit
+from eha_health.discrepancy.candidates import BY_NAME, CANDIDATES
+from eha_health.discrepancy.loop import NO_MISSING_EFFECT, UNEXPLAINED, analyse_fdi_test, fdi_settings, projection_share
+from eha_health.io.importer import ImportError_, import_text
+from eha_health.physics.faults import Faults
+from eha_health.physics.params import load
+from eha_health.signals.residuals import analyse, ljung_box, noise_level, rest_noise_level
 
 ROOT = Path(__file__).resolve().parents[1]
 BAGS = ROOT / "bags"
@@ -289,7 +290,7 @@ def test_import_with_a_channel_map_and_units(tmp_path):
     p = subprocess.run(CLI + ["import", str(data), "--map", str(m), "--out", str(csv)], capture_output=True,
                        text=True, cwd=ROOT)
     assert p.returncode == 0, p.stderr
-    from eha_health.response import Response
+    from eha_health.signals.response import Response
     back = Response.from_csv(csv, required=("t", "command", "position"))
     assert np.allclose(back.position, r.position) and np.allclose(back.load, r.load)
     # the same record as an MCAP bag: command and joint state only (no pressure or current topic,
@@ -298,8 +299,8 @@ def test_import_with_a_channel_map_and_units(tmp_path):
     p = subprocess.run(CLI + ["import", str(data), "--map", str(m), "--out", str(bag)], capture_output=True,
                        text=True, cwd=ROOT)
     assert p.returncode == 0, p.stderr
-    from eha_health.bagrun import read_run
-    from eha_health.mcaplog import read_bag
+    from eha_health.io.bagrun import read_run
+    from eha_health.io.mcaplog import read_bag
     assert set(read_bag(bag, topics=[]).types) == {"/eha/command", "/eha/joint_state", "/eha/test_window"}
     run = read_run(bag, record=True)
     assert np.array_equal(run.response.position, r.position) and np.array_equal(run.response.load, r.load)
@@ -307,8 +308,8 @@ def test_import_with_a_channel_map_and_units(tmp_path):
     with pytest.raises(ValueError, match="missing topic eha/pressure"):   # not an FDI test of the contract
         read_run(bag)
     # a channel measured only in part cannot be written (nothing is invented)
-    from eha_health.bagrun import write_run
-    from eha_health.mcaplog import BagWriter
+    from eha_health.io.bagrun import write_run
+    from eha_health.io.mcaplog import BagWriter
     r.velocity = np.where(r.t < 0.2, 0.0, np.nan)
     with BagWriter(tmp_path / "part.mcap") as w, pytest.raises(ValueError, match="velocity is measured only in part"):
         write_run(w, r)
@@ -364,8 +365,8 @@ def test_real_rig_import_and_loop(tmp_path):
     p = subprocess.run(CLI + ["import", str(MTS), "--map", str(ROOT / "maps/mts_servohydraulic.yaml"),
                               "--out", str(bag)], capture_output=True, text=True, cwd=ROOT)
     assert p.returncode == 0, p.stderr
-    from eha_health.bagrun import read_run
-    from eha_health.response import Response
+    from eha_health.io.bagrun import read_run
+    from eha_health.signals.response import Response
     a, b = read_run(bag, record=True).response, Response.from_csv(csv, required=("t", "command", "position"))
     assert np.allclose(a.position, b.position, rtol=0, atol=1e-12) and np.allclose(a.load, b.load, atol=1e-9)
     b = out["before"]
@@ -402,8 +403,8 @@ def test_real_rig_import_and_loop(tmp_path):
 
 # ----------------------------------------------------------------------------- monitor node
 def test_monitor_node_warns_what_the_model_lacks(tmp_path):
-    from eha_health.mcaplog import read_bag
-    from eha_health.nodes.graph import Graph
+    from eha_health.io.mcaplog import read_bag
+    from eha_health.ros.graph import Graph
     log = tmp_path / "m.mcap"
     with Graph(faults=Faults(0.0, 0.0, 0.0), effects=("sensor_delay",), log_path=log, discrepancy=True) as g:
         r = g.run_test()
@@ -414,7 +415,7 @@ def test_monitor_node_warns_what_the_model_lacks(tmp_path):
 
 
 def test_monitor_node_warns_when_no_candidate_explains_a_structured_residual(tmp_path):
-    from eha_health.nodes.graph import Graph
+    from eha_health.ros.graph import Graph
     soft = tmp_path / "soft_mount.yaml"
     soft.write_text("linkage:\n  stiffness: 5.0e6\n")      # undeclared: the monitor's link is 2e7 N/m
     with Graph(faults=Faults(0.0, 0.0, 0.0), effects=("sensor_noise",), seed=6, params_file=str(soft),

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from eha_health.frequency import compare, estimate
+from eha_health.signals.frequency import compare, estimate
 
 FS = 1000.0
 

@@ -11,10 +11,12 @@ import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from eha_health.bagrun import read_run
-from eha_health.mcaplog import read_bag
-from eha_health.nodes.graph import Graph, launch, replay
-from eha_health.params import Faults
+from eha_health.io.bagrun import read_run
+from eha_health.io.mcaplog import read_bag
+from eha_health.ros.graph import Graph
+from eha_health.ros.launch import launch
+from eha_health.ros.replay import replay
+from eha_health.physics.faults import Faults
 
 NAMES = ("k_gm", "k_fsj", "k_bkl")
 TOL = 0.01
@@ -104,7 +106,7 @@ def test_latched_health_reaches_a_late_subscriber():
     import rclpy
     from std_msgs.msg import Float64MultiArray
 
-    from eha_health.nodes import qos
+    from eha_health.ros import qos
     from msg_bridge import contract as C
     with Graph(faults=Faults(0.0, 0.0, 0.5)) as g:
         d = g.run_test()["diagnosis"]
@@ -207,8 +209,8 @@ def test_start_test_is_refused_until_a_plant_is_matched():
     from rclpy.signals import SignalHandlerOptions
     from std_srvs.srv import Trigger
 
-    from eha_health.nodes import teardown
-    from eha_health.nodes.command import CommandNode
+    from eha_health.ros import teardown
+    from eha_health.ros.command import CommandNode
     ctx = rclpy.Context()
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     node = CommandNode(context=ctx)

@@ -20,7 +20,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from eha_health.mcaplog import BagError, BagWriter, read_bag, schema_text
+from eha_health.io.mcaplog import BagError, BagWriter, read_bag, schema_text
 
 JS, FP, DA = "sensor_msgs/msg/JointState", "sensor_msgs/msg/FluidPressure", "diagnostic_msgs/msg/DiagnosticArray"
 FMA, HDR = "std_msgs/msg/Float64MultiArray", "std_msgs/msg/Header"
@@ -398,7 +398,7 @@ def test_flush_survives_a_killed_writer(tmp_path):
     path = tmp_path / "killed.mcap"
     code = (
         "import os, sys\n"
-        "from eha_health.mcaplog import BagWriter\n"
+        "from eha_health.io.mcaplog import BagWriter\n"
         f"w = BagWriter({str(path)!r})\n"
         "for i in range(80):\n"
         f"    w.write('/eha/pressure', {FP!r}, {{'fluid_pressure': float(i)}}, i)\n"

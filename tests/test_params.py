@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from eha_health import Faults, load, simulate
-from eha_health import layout as L
-from eha_health.params import field_table, pack
+from eha_health.physics import layout as L
+from eha_health.physics.params import field_table
+from eha_health.physics.packing import pack
 
 
 def test_layout_indices_match_names():

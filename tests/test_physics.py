@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from eha_health import FDISequence, Faults, Plant, load, simulate
-from eha_health.friction import stick_slip_velocity
-from eha_health.params import effective
+from eha_health.physics.friction import stick_slip_velocity
+from eha_health.physics.packing import effective
 
 
 def run(kind, cmd, faults=Faults(), params=None, seed=None):
@@ -78,7 +78,7 @@ def test_end_stops_hold():
 
 
 def test_signature_trends_are_monotonic():
-    from eha_health.signatures import signatures
+    from eha_health.identification.signatures import signatures
     levels = (0.0, 0.4, 0.8)
     ov = [signatures(simulate(faults=Faults(k_gm=k))).overshoot for k in levels]
     pk = [signatures(simulate(faults=Faults(k_fsj=k))).pressure_peak for k in levels]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from eha_health import FDISequence, Response, simulate
-from eha_health.response import CSV_COLUMNS
+from eha_health.signals.response import CSV_COLUMNS
 
 BIN = Path(sys.executable).parent / "eha-health"
 CLI = [str(BIN)] if BIN.exists() else [sys.executable, "-m", "eha_health.cli"]

@@ -4,10 +4,11 @@ Physics (reference and monitor EHA models), the FDI test sequence and the fault
 signatures. Nothing here imports ROS: the same code runs in a notebook, a batch
 job or a node.
 """
-from .model import Plant, simulate, simulate_batch
-from .params import Faults, ModelParams, load
-from .response import Response
-from .sequence import FDISequence
+from .physics.model import Plant, simulate, simulate_batch
+from .physics.faults import Faults
+from .physics.params import ModelParams, load
+from .signals.response import Response
+from .physics.sequence import FDISequence
 
 __all__ = ["Faults", "FDISequence", "ModelParams", "Plant", "Response", "diagnose", "load", "simulate",
            "simulate_batch"]
@@ -17,6 +18,6 @@ __version__ = "0.1.0"
 def __getattr__(name):
     # identification pulls in scipy.optimize and pymoo: loaded on first use, not with the physics
     if name == "diagnose":
-        from .identify import diagnose
+        from .identification.diagnose import diagnose
         return diagnose
     raise AttributeError(f"module 'eha_health' has no attribute {name!r}")

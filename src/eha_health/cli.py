@@ -13,7 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .params import EFFECT_NAMES, Faults, load
+from .physics.params import EFFECT_NAMES, load
+from .physics.faults import Faults
 
 
 class UsageError(Exception):
@@ -34,7 +35,7 @@ def _params(args, kind: str):
 
 
 def cmd_simulate(args) -> int:
-    from .model import simulate
+    from .physics.model import simulate
     from .plotting import plot_response
     faults = Faults.parse(args.faults or "")
     params = _params(args, args.model)
@@ -57,7 +58,7 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
-    from .calibrate import calibrate, write_monitor_yaml
+    from .identification.calibrate import calibrate, write_monitor_yaml
     print("calibrating the monitor first stage on the healthy reference response ...", file=sys.stderr)
     res = calibrate(verbose=not args.json)
     if args.out:
@@ -80,7 +81,7 @@ def cmd_signatures(args) -> int:
     import csv
 
     from .plotting import plot_signature_families, trend_table
-    from .signatures import Detector
+    from .identification.signatures import Detector
     out = Path(args.out)
     files = plot_signature_families(out, progress=None if args.quiet else _progress_line)
     rows = trend_table()
@@ -100,18 +101,18 @@ def cmd_signatures(args) -> int:
 
 def cmd_bench(args) -> int:
     if args.what == "speed":
-        from .bench import format_speed, speed
+        from .bench.speed import format_speed, speed
         res = speed(with_compile=not args.no_compile)
         print(json.dumps(res, indent=2) if args.json else format_speed(res))
         return 0
     if args.what == "graph":
-        from .bench import format_graph, graph
+        from .bench.graph import format_graph, graph
         res = graph(rate=args.rate, progress=None if (args.json or args.quiet) else _progress_line)
         print(json.dumps(res, indent=2) if args.json else format_graph(res))
         return 0
     if args.what == "floor":
-        from .discbench import effect_floor, floor_yaml, residual_floor
-        from .discrepancy import Settings
+        from .bench.floor import effect_floor, floor_yaml, residual_floor
+        from .discrepancy.loop import Settings
         prog = None if (args.json or args.quiet) else _progress_line
         res = residual_floor(n=args.random or 12, seed=args.seed or 2024, progress=prog)
         eff = effect_floor(seed=(args.seed or 2024) + 1, progress=prog)
@@ -123,15 +124,15 @@ def cmd_bench(args) -> int:
         print(json.dumps({**res, "effects": eff}, indent=2))
         return 0
     if args.what == "discrepancy":
-        from .discbench import format_synthetic, synthetic
+        from .bench.discrepancy import format_synthetic, synthetic
         res = synthetic(seed=args.seed, n_noise=args.random or 6,
                         progress=None if (args.json or args.quiet) else _progress_line)
         print(json.dumps(res, indent=2, default=float) if args.json else "\n" + format_synthetic(res))
         return 0
     if args.what != "paper":
         raise UsageError(f"unknown benchmark {args.what!r}; available: speed, paper, graph, floor, discrepancy")
-    from .identify import METHODS
-    from .paperbench import format_markdown, format_text, run_bench
+    from .identification.diagnose import METHODS
+    from .bench.paper import format_markdown, format_text, run_bench
     methods = METHODS if args.method == "all" else (args.method,)
     if args.method != "all" and args.method not in METHODS:
         raise UsageError(f"unknown method {args.method!r}; choose from {', '.join(METHODS)} or all")
@@ -145,7 +146,7 @@ def cmd_bench(args) -> int:
         Path(args.markdown).write_text(format_markdown(res, cmd))
     if args.write_model_error:
         import yaml
-        from .paperbench import model_error_yaml
+        from .bench.paper import model_error_yaml
         method = "hybrid" if "hybrid" in methods else methods[0]
         target = Path(args.write_model_error)
         previous = yaml.safe_load(target.read_text()) if target.is_file() else None
@@ -160,9 +161,9 @@ def cmd_bench(args) -> int:
 
 def _load_run(path: Path, test_id: int | None, required: tuple[str, ...] | None = None):
     """(response, truth or None, notes) from a CSV (columns ``required``, default all) or an MCAP bag."""
-    from .response import Response
+    from .signals.response import Response
     if path.suffix.lower() == ".mcap":
-        from .bagrun import read_run, truth_values
+        from .io.bagrun import read_run, truth_values
         # fewer required channels: a measured record (e.g. a rig with command and position only)
         run = read_run(path, test_id, record=required is not None)
         return run.response, truth_values(run.truth), run.notes
@@ -172,7 +173,7 @@ def _load_run(path: Path, test_id: int | None, required: tuple[str, ...] | None 
 
 
 def cmd_diagnose(args) -> int:
-    from .identify import NAMES, diagnose
+    from .identification.diagnose import NAMES, diagnose
     path = Path(args.run)
     r, truth, notes = _load_run(path, args.test)
     for n in notes:
@@ -204,7 +205,7 @@ def cmd_diagnose(args) -> int:
 
 
 def _truth_table(truth, d) -> list[str]:
-    from .identify import NAMES
+    from .identification.diagnose import NAMES
     rows = [f"  {'':6s} {'truth':>7s} {'estimate':>9s} {'std':>7s} {'error':>8s}"]
     for n in NAMES:
         est = getattr(d.faults, n)
@@ -213,7 +214,7 @@ def _truth_table(truth, d) -> list[str]:
 
 
 def cmd_demo(args) -> int:
-    from .nodes.graph import Graph
+    from .ros.graph import Graph
     from .plotting import plot_diagnosis
     faults = Faults.parse(args.faults)
     out = Path(args.out)
@@ -240,7 +241,7 @@ def cmd_demo(args) -> int:
 
 
 def cmd_record(args) -> int:
-    from .nodes.graph import Graph
+    from .ros.graph import Graph
     faults = Faults.parse(args.faults)
     effects = [e.strip() for e in args.effects.split(",") if e.strip()] + (["sensor_noise"] if args.noise else [])
     out = Path(args.out)
@@ -258,7 +259,7 @@ def cmd_record(args) -> int:
 
 
 def cmd_launch(args) -> int:
-    from .nodes.graph import launch
+    from .ros.launch import launch
     faults = Faults.parse(args.faults)
     res = launch(faults, effects=[e for e in args.effects.split(",") if e], seed=args.seed, tests=args.tests,
                  rate=args.rate, method=args.method, log_path=args.log, domain_id=args.domain_id,
@@ -268,7 +269,7 @@ def cmd_launch(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from .nodes.graph import replay
+    from .ros.replay import replay
     res = replay(args.bag, rate=args.rate, with_monitor=not args.no_monitor, log_path=args.log,
                  domain_id=args.domain_id)
     print(json.dumps(res, indent=2, default=float) if args.json else res["summary"])
@@ -276,7 +277,7 @@ def cmd_replay(args) -> int:
 
 
 def cmd_import(args) -> int:
-    from .importer import import_text
+    from .io.importer import import_text
     r = import_text(args.file, args.map)
     out = Path(args.out)
     measured = r.meta["measured"]
@@ -284,8 +285,8 @@ def cmd_import(args) -> int:
         out.parent.mkdir(parents=True, exist_ok=True)
         r.to_csv(out)
     elif out.suffix.lower() == ".mcap":
-        from .bagrun import write_run
-        from .mcaplog import BagWriter
+        from .io.bagrun import write_run
+        from .io.mcaplog import BagWriter
         out.parent.mkdir(parents=True, exist_ok=True)
         with BagWriter(out) as w:
             write_run(w, r)
@@ -298,8 +299,8 @@ def cmd_import(args) -> int:
 
 
 def _discrepancy_mode(r) -> str:
-    from .fitness import check_window
-    from .sequence import FDISequence
+    from .identification.fitness import check_window
+    from .physics.sequence import FDISequence
     if not all(np.isfinite(getattr(r, c)).all() for c in ("position", "velocity", "pressure", "current")):
         return "rig"
     try:
@@ -310,7 +311,7 @@ def _discrepancy_mode(r) -> str:
 
 
 def cmd_discrepancy(args) -> int:
-    from .discrepancy import analyse_fdi_test, format_report
+    from .discrepancy.loop import analyse_fdi_test, format_report
     path = Path(args.run)
     if args.max_effects < 0:
         raise UsageError(f"--max-effects must be >= 0, got {args.max_effects}")
@@ -322,7 +323,7 @@ def cmd_discrepancy(args) -> int:
     if mode == "fdi":
         rep = analyse_fdi_test(r, max_effects=args.max_effects, seed=args.seed, truth=truth, progress=progress)
     else:
-        from .rig import analyse_rig
+        from .discrepancy.rig import analyse_rig
         rep = analyse_rig(r, max_effects=args.max_effects, fit_fraction=args.fit_fraction, progress=progress)
     if args.plot:
         from .plotting import plot_discrepancy

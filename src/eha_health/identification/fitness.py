@@ -20,9 +20,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .layout import O_CUR, O_P12, O_POS, O_VEL, O_XS
-from .response import Response
-from .sequence import FDISequence
+from ..physics.layout import O_CUR, O_P12, O_POS, O_VEL, O_XS
+from ..signals.response import Response
+from ..physics.sequence import FDISequence
 
 #: Residual scale per channel [SI]: a difference of one scale weighs one unit.
 CHANNEL_SCALES = {"position": 1e-4, "velocity": 5e-3, "pressure": 5e5, "current": 5e-4, "spool": 2e-5}

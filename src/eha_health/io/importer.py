@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .response import Response
+from ..signals.response import Response
 
 #: SI target of each importable channel and the units accepted for it (factor to SI).
 UNITS = {

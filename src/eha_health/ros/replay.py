@@ -7,6 +7,7 @@ then diagnoses the recorded tests as if they were live.
 """
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -15,14 +16,14 @@ from rclpy.node import Node
 from msg_bridge import contract as C
 from msg_bridge.convert import NS
 
-from . import msg_class, qos, run_node
+from . import msg_class, qos, run_node, teardown
 
 
 
 def recorded_inputs(path: str | Path) -> list[tuple[int, str, bytes]]:
     """(log time [ns], topic, raw CDR bytes) of every input topic, in log-time order."""
-    from ..bagrun import resolve_topics
-    from ..mcaplog import BagError, read_bag
+    from ..io.bagrun import resolve_topics
+    from ..io.mcaplog import BagError, read_bag
     names = resolve_topics(read_bag(path, topics=[]).types, path)
     if C.COMMAND.name not in names:
         raise BagError(f"{path}: missing topic {C.COMMAND.name}: nothing to replay")
@@ -82,6 +83,68 @@ class ReplayNode(Node):
         for _, topic, data in self.rows[self.sent:end]:
             self.pubs[topic].publish(data)
         self.sent = end
+
+
+def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_path: str | Path = "",
+           domain_id: int | None = None, method: str = "hybrid", timeout_s: float = 600.0) -> dict:
+    """Republish ``bag`` into the graph; with ``with_monitor`` also diagnose it here.
+
+    Returns the monitor's verdicts (with the bag's own truth metadata where it has
+    some) and a printable summary.
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from rclpy.signals import SignalHandlerOptions
+
+    from ..io.bagrun import complete_windows, resolve_topics, truth_values
+    from ..io.mcaplog import read_bag
+    from .launch import results_summary
+    from .monitor import MonitorNode
+    from msg_bridge import contract as C
+    if domain_id is not None:
+        os.environ["ROS_DOMAIN_ID"] = str(domain_id)
+    win_topic = resolve_topics(read_bag(bag, topics=[]).types, bag).get(C.TEST_WINDOW.name)
+    marks = read_bag(bag, topics=[win_topic] if win_topic else [])   # the marks and the metadata
+    n_windows = len(complete_windows(marks, win_topic)) if with_monitor else 0
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    nodes = []
+    ex = SingleThreadedExecutor(context=ctx)
+    try:
+        rep = ReplayNode(bag, context=ctx, parameter_overrides=[Parameter("rate", value=float(rate))])
+        nodes.append(rep)
+        mon = None
+        if with_monitor:
+            mon = MonitorNode(context=ctx, parameter_overrides=[Parameter("log_path", value=str(log_path)),
+                                                                 Parameter("method", value=method)])
+            nodes.append(mon)
+        for n in nodes:
+            ex.add_node(n)
+        end = time.monotonic() + timeout_s
+
+        def finished():
+            if not rep.done:
+                return False
+            return mon is None or (len(mon.results) >= n_windows and not mon.busy)
+        while not finished() and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.01)
+        linger = time.monotonic() + 1.0   # let reliable deliveries to other processes complete
+        while mon is None and time.monotonic() < linger:
+            ex.spin_once(timeout_sec=0.01)
+        results = [{"test_id": r["test_id"], "level": r["level"], "message": r["message"],
+                    "diagnosis": r["diagnosis"].as_dict() if r["diagnosis"] else None,
+                    "truth": truth_values(marks.metadata.get(f"truth/test_{r['test_id']}"))}
+                   for r in (mon.results if mon else [])]
+        sent = rep.sent
+    finally:
+        teardown(ex, nodes, ctx)
+    ok = [r for r in results if r["diagnosis"]]
+    summary = f"replayed {sent} messages from {bag} at rate {rate:g}"
+    if with_monitor:
+        summary += "\n" + results_summary(ok)
+        summary += "".join(f"\ntest {r['test_id']}: {r['level']}: {r['message']}" for r in results if not r["diagnosis"])
+    return {"sent": sent, "results": results, "summary": summary}
 
 
 def main(args=None) -> int:

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .response import Response
-from .sequence import FDISequence
+from ..signals.response import Response
+from ..physics.sequence import FDISequence
 
 NS = 1_000_000_000
 MEASURED = ("position", "velocity", "pressure", "current")

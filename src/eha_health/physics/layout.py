@@ -2,7 +2,7 @@
 
 The numba kernels read one float64 parameter vector ``p`` and one state
 vector ``s``; the names below are their indices. Python builds ``p`` from
-typed dataclasses (:mod:`eha_health.params`), so the kernels never see a
+typed dataclasses (:mod:`eha_health.physics.params`), so the kernels never see a
 magic number and never depend on Python objects.
 
 Adding a parameter: append a name to ``P_NAMES`` and an index constant with

@@ -14,8 +14,10 @@ import numpy as np
 
 from . import kernel
 from .layout import N_S, O_CMD, O_CUR, O_P12, O_POS, O_VEL, O_XJ, O_XS
-from .params import Faults, ModelParams, load, pack
-from .response import Response
+from .faults import Faults
+from .params import ModelParams, load
+from .packing import pack
+from ..signals.response import Response
 from .sensors import acquisition, delay_buffer
 from .sequence import FDISequence
 

@@ -24,7 +24,7 @@ from msg_bridge import contract as C
 from msg_bridge import convert as cv
 from msg_bridge.convert import NS
 
-from ..sequence import FDISequence
+from ..physics.sequence import FDISequence
 from . import msg_class, qos, run_node
 
 

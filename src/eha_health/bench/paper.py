@@ -17,11 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import differential_evolution
 
-from .fitness import Measured, make_fitness
-from .identify import NAMES, UPPER, Evaluator, diagnose
-from .model import simulate
-from .params import Faults, load
-from .residuals import noise_level
+from ..identification.fitness import Measured, make_fitness
+from ..identification.diagnose import NAMES, UPPER, Evaluator, diagnose
+from ..physics.model import simulate
+from ..physics.faults import Faults
+from ..physics.params import load
+from ..signals.residuals import noise_level
 
 # ---- the paper's published values
 PAPER_SINGLE = {  # method -> fault -> [(true, estimated)]  (Tables 1 and 3)

@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import frequency
-from .augment import Knob, Record
+from ..signals import frequency
+from ..identification.problem import Knob, Record
 from .candidates import CANDIDATES
-from .discrepancy import DiscrepancyReport, Settings, quantile_segments, run_loop
-from .params import ModelParams, load
+from .loop import DiscrepancyReport, Settings, quantile_segments, run_loop
+from ..physics.params import ModelParams, load
 
 #: Nominal parameters calibrated to a rig (start values: the shipped monitor).
 RIG_KNOBS = (

@@ -1,8 +1,8 @@
 """Test runs from an MCAP bag recorded to the topic contract (docs/interfaces.md).
 
 :func:`read_run` reads the measured channels and the test-window marks, picks one
-window and returns its :class:`~eha_health.response.Response` (checked by
-:func:`eha_health.window.assemble`) together with the truth the bag declares in its
+window and returns its :class:`~eha_health.signals.response.Response` (checked by
+:func:`eha_health.io.window.assemble`) together with the truth the bag declares in its
 metadata, if any (simulated runs only). No ROS install is needed.
 """
 from __future__ import annotations
@@ -16,8 +16,8 @@ from msg_bridge import contract as C
 from msg_bridge import convert as cv
 
 from .mcaplog import Bag, BagError, read_bag
-from .response import Response
-from .sequence import FDISequence
+from ..signals.response import Response
+from ..physics.sequence import FDISequence
 from .window import NS, Samples, WindowError, assemble
 
 SIGNALS = (C.COMMAND, C.JOINT_STATE, C.PRESSURE, C.CURRENT)
@@ -147,7 +147,7 @@ def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence
 
 def write_run(writer, response: Response, test_id: int = 1, start_ns: int = 0, truth: dict | None = None,
               actuator_id: str = "eha") -> None:
-    """Append ``response`` as test window ``test_id`` to an open :class:`~eha_health.mcaplog.BagWriter`,
+    """Append ``response`` as test window ``test_id`` to an open :class:`~eha_health.io.mcaplog.BagWriter`,
     to the topic contract (stamps ``start_ns + t``; log time = stamp). Needs the rclpy message
     classes (msg_bridge builders). ``truth`` (fault coefficients of a simulated run) goes into
     the metadata record ``truth/test_<id>``, never into a topic.

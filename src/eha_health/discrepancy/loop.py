@@ -49,12 +49,12 @@ from typing import Callable
 import numpy as np
 import yaml
 
-from .augment import FAULT_KNOBS, AugmentedModel, Fit, Knob, Record, Residual, fit
+from ..identification.problem import FAULT_KNOBS, AugmentedModel, Fit, Knob, Record, Residual, fit
 from .candidates import CANDIDATES, Candidate
-from .fitness import CHANNEL_COLUMNS
-from .identify import _autocorr_inflation
-from .params import ModelParams, load
-from .residuals import DISPLAY_UNITS, ResidualAnalysis, analyse, rest_noise_level
+from ..identification.fitness import CHANNEL_COLUMNS
+from ..identification.diagnose import _autocorr_inflation
+from ..physics.params import ModelParams, load
+from ..signals.residuals import DISPLAY_UNITS, ResidualAnalysis, analyse, rest_noise_level
 
 
 #: Verdict when the residual is noise (within noise and the model's floor, or white).
@@ -91,7 +91,7 @@ class Settings:
 
 @functools.lru_cache(maxsize=None)
 def _packaged_settings() -> dict:
-    return yaml.safe_load(resources.files(__package__).joinpath("data/discrepancy.yaml").read_text()) or {}
+    return yaml.safe_load(resources.files("eha_health").joinpath("data/discrepancy.yaml").read_text()) or {}
 
 
 def fdi_settings(path: str | Path | None = None) -> Settings:
@@ -483,7 +483,7 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
 
 
 def fdi_segments(record: Record, sequence=None) -> dict[str, np.ndarray]:
-    from .sequence import FDISequence
+    from ..physics.sequence import FDISequence
     seq = sequence or FDISequence()
     return {name: seq.mask(name, record.t) for name in ("ramp", "step", "return", "sine_low", "sine_high")}
 
@@ -498,7 +498,7 @@ def analyse_fdi_test(response, max_effects: int = 2, seed: int = 0, params: Mode
                      truth: dict | None = None, candidates: tuple[Candidate, ...] = CANDIDATES,
                      settings: Settings | None = None, progress=None, diagnosis=None) -> DiscrepancyReport:
     """The loop on one FDI test: start from the diagnosis (given, or run with ``seed``)."""
-    from .identify import diagnose
+    from ..identification.diagnose import diagnose
     record = Record.from_response(response)
     if diagnosis is None:
         diagnosis = diagnose(response, seed=seed, params=params, progress=progress)

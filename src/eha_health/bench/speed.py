@@ -13,9 +13,10 @@ import time
 
 import numpy as np
 
-from .model import Plant, simulate_batch
-from .params import Faults, load
-from .sequence import FDISequence
+from ..physics.model import Plant, simulate_batch
+from ..physics.faults import Faults
+from ..physics.params import load
+from ..physics.sequence import FDISequence
 
 _COMPILE_SNIPPET = """
 import time, json
@@ -23,7 +24,7 @@ t0 = time.perf_counter()
 from eha_health import simulate
 simulate("reference"); t1 = time.perf_counter()
 simulate("monitor"); t2 = time.perf_counter()
-from eha_health.model import simulate_batch
+from eha_health.physics.model import simulate_batch
 from eha_health import load, Faults, FDISequence
 seq = FDISequence(); t = seq.times(1000)
 simulate_batch(load("monitor"), [Faults()] * 2, seq.command(t)); t3 = time.perf_counter()
@@ -147,42 +148,3 @@ def format_speed(r: dict) -> str:
     return "\n".join(lines)
 
 
-def graph(executors=("single", "events"), rate: float = 0.0, progress=None) -> dict:
-    """Wall time of one full FDI test through the in-process node graph (command, plant,
-    monitor recording to MCAP, diagnosis) and the message throughput, per executor."""
-    from pathlib import Path
-
-    from .nodes.graph import Graph
-    res = {"rate": rate, "samples_expected": int(round(FDISequence().duration * 1000)), "runs": {}}
-    with tempfile.TemporaryDirectory() as tmp:
-        for ex in executors:
-            if progress:
-                progress(f"graph on the {ex} executor ...")
-            with Graph(faults=Faults(0.4, 0.6, 0.4), rate=rate, executor=ex,
-                       log_path=Path(tmp) / f"{ex}.mcap") as g:
-                t0 = time.perf_counter()
-                r = g.run_test()
-                total = time.perf_counter() - t0
-                msgs = sum(g.monitor.received.values())
-            d = r["diagnosis"]
-            diag = d.wall_time_s if d else float("nan")
-            res["runs"][ex] = {"wall_s": total, "diagnosis_s": diag, "messaging_s": total - diag,
-                               "messages": msgs, "msgs_per_s": msgs / (total - diag),
-                               "samples": len(r["response"]) if r["response"] is not None else 0,
-                               "level": r["level"], "message": r["message"]}
-    return res
-
-
-def format_graph(res: dict) -> str:
-    lines = [f"One FDI test through the in-process graph (1 kHz, rate {res['rate']:g}: "
-             f"{'as fast as possible' if res['rate'] == 0 else 'x real time'})",
-             f"{'executor':10s} {'wall [s]':>9s} {'messaging':>10s} {'diagnosis':>10s} {'msgs':>7s} "
-             f"{'msg/s':>7s} {'samples':>8s}"]
-    for ex, r in res["runs"].items():
-        lines.append(f"{ex:10s} {r['wall_s']:9.2f} {r['messaging_s']:10.2f} {r['diagnosis_s']:10.2f} "
-                     f"{r['messages']:7d} {r['msgs_per_s']:7.0f} {r['samples']:5d}/{res['samples_expected']}")
-    runs = list(res["runs"].values())
-    if len(runs) == 2 and runs[1]["messaging_s"] > 0:
-        lines.append(f"messaging time ratio {list(res['runs'])[0]}/{list(res['runs'])[1]}: "
-                     f"{runs[0]['messaging_s'] / runs[1]['messaging_s']:.2f}")
-    return "\n".join(lines)

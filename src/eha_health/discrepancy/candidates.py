@@ -30,8 +30,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from .augment import Knob
-from .params import ModelParams
+from ..identification.problem import Knob
+from ..physics.params import ModelParams
 
 
 @dataclass(frozen=True)

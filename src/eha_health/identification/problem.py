@@ -23,9 +23,11 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .fitness import CHANNEL_COLUMNS, CHANNEL_SCALES, CHANNEL_WEIGHTS
-from .model import simulate_packed
-from .params import Faults, ModelParams, pack
-from .response import Response
+from ..physics.model import simulate_packed
+from ..physics.faults import Faults
+from ..physics.params import ModelParams
+from ..physics.packing import pack
+from ..signals.response import Response
 
 MEASURABLE = ("position", "velocity", "pressure", "current")
 

@@ -40,12 +40,13 @@ from scipy.optimize import least_squares, minimize, minimize_scalar
 
 from .fitness import CHANNEL_SCALES, LsqFitness, Measured, PaperFitness, make_fitness
 from .genetic import GAOptions, run_ga
-from .layout import O_P12, O_POS, O_VEL
-from .model import response_from_rows, simulate_batch
-from .params import Faults, ModelParams, load
-from .residuals import noise_level
-from .response import Response
-from .sequence import FDISequence
+from ..physics.layout import O_P12, O_POS, O_VEL
+from ..physics.model import response_from_rows, simulate_batch
+from ..physics.faults import Faults
+from ..physics.params import ModelParams, load
+from ..signals.residuals import noise_level
+from ..signals.response import Response
+from ..physics.sequence import FDISequence
 
 NAMES = ("k_gm", "k_fsj", "k_bkl")
 METHODS = ("deterministic", "ga", "hybrid")
@@ -293,7 +294,7 @@ def _error_file(path: str | None) -> dict:
     import yaml
     from importlib import resources
     where = path or "data/model_error.yaml"
-    text = Path(path).read_text() if path else resources.files(__package__).joinpath(
+    text = Path(path).read_text() if path else resources.files("eha_health").joinpath(
         "data/model_error.yaml").read_text()
     data = yaml.safe_load(text) or {}
 
@@ -460,7 +461,7 @@ _DETECTORS: dict = {}
 def _coarse_detector(params: ModelParams):
     """Coarse detector built on the monitor model (cached per parameter set)."""
     from .signatures import Detector
-    from .params import pack
+    from ..physics.packing import pack
     key = pack(params).tobytes()
     if key not in _DETECTORS:
         _DETECTORS.clear()

@@ -21,9 +21,10 @@ from rclpy.node import Node
 from msg_bridge import contract as C
 from msg_bridge import convert as cv
 
-from ..layout import O_CUR, O_P12, O_POS, O_VEL
-from ..model import Plant
-from ..params import Faults, load
+from ..physics.layout import O_CUR, O_P12, O_POS, O_VEL
+from ..physics.model import Plant
+from ..physics.faults import Faults
+from ..physics.params import load
 from . import msg_class, qos, run_node
 
 FAULT_PARAMS = ("k_gm", "k_fsj", "k_bkl")

@@ -18,10 +18,11 @@ import yaml
 from scipy.optimize import least_squares
 
 from .fitness import CHANNEL_SCALES
-from .model import Plant, response_from_rows, simulate
-from .params import Faults, ModelParams, load
-from .response import Response
-from .sequence import FDISequence
+from ..physics.model import Plant, response_from_rows, simulate
+from ..physics.faults import Faults
+from ..physics.params import ModelParams, load
+from ..signals.response import Response
+from ..physics.sequence import FDISequence
 
 CALIBRATION_CHANNELS = ("position", "pressure", "current", "spool")
 #: Pressure weighs less: while the jack is stuck P12 rests anywhere in the friction band,

@@ -3,9 +3,9 @@
 Subscribes to the input topics of :mod:`msg_bridge.contract` (command, joint state,
 pressure, current, test-window marks). When a window's 'end' mark has arrived and
 every channel has reached that stamp (or ``window_timeout_s`` has passed), the
-window is assembled and checked (:mod:`eha_health.window`): gaps, NaN, order,
+window is assembled and checked (:mod:`eha_health.io.window`): gaps, NaN, order,
 duplicates, dropped samples, length. A good window is diagnosed in a worker thread
-(:func:`eha_health.identify.diagnose`) so the executor keeps serving messages; a bad
+(:func:`eha_health.identification.diagnose`) so the executor keeps serving messages; a bad
 one is reported at once as ERROR with the reason. Either way the node keeps running.
 
 Outputs (each also written to the log as published): ``/diagnostics`` (one status per actuator, re-published every
@@ -30,8 +30,8 @@ from msg_bridge import contract as C
 from msg_bridge import convert as cv
 from msg_bridge.convert import NS
 
-from ..identify import METHODS, NAMES, diagnose
-from ..window import Samples, WindowError, assemble
+from ..identification.diagnose import METHODS, NAMES, diagnose
+from ..io.window import Samples, WindowError, assemble
 from . import msg_class, qos, run_node
 
 #: Samples kept per channel (60 s at 1 kHz): older ones can no longer be in a window.
@@ -43,7 +43,7 @@ def _diagnose(r, loop: bool, max_effects: int, **args):
     d = diagnose(r, **args)
     if not loop:
         return d, None
-    from ..discrepancy import analyse_fdi_test
+    from ..discrepancy.loop import analyse_fdi_test
     return d, analyse_fdi_test(r, max_effects=max_effects, diagnosis=d)
 
 
@@ -116,7 +116,7 @@ class MonitorNode(Node):
             return None
         if path == "auto":
             path = Path(self.get_parameter("log_dir").value) / time.strftime("eha_monitor_%Y%m%d-%H%M%S.mcap")
-        from ..mcaplog import BagWriter
+        from ..io.mcaplog import BagWriter
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         self.log_path = Path(path)
         w = BagWriter(path)
@@ -284,7 +284,7 @@ class MonitorNode(Node):
             level, msg = self._level(k)
             values = {"test_id": tid}
             if rep is not None:
-                from ..discrepancy import UNEXPLAINED     # loaded with the report (lazy: node start-up)
+                from ..discrepancy.loop import UNEXPLAINED     # loaded with the report (lazy: node start-up
                 values["discrepancy"] = rep.verdict
                 entry["discrepancy"] = rep
                 lacks = None

@@ -17,10 +17,11 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .model import simulate
-from .params import Faults, ModelParams
-from .response import Response
-from .sequence import FDISequence
+from ..physics.model import simulate
+from ..physics.faults import Faults
+from ..physics.params import ModelParams
+from ..signals.response import Response
+from ..physics.sequence import FDISequence
 
 #: Surface displacement [m] that counts as "motion has started" during the ramp.
 MOTION_THRESHOLD = 5e-5

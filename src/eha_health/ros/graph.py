@@ -1,0 +1,130 @@
+"""Run the plant, command and monitor nodes: in one process (:class:`Graph`) or as
+three OS processes talking over DDS (:func:`launch`).
+
+>>> with Graph(faults=Faults(0.4, 0.6, 0.4), log_path="out/run.mcap") as g:
+...     r = g.run_test()                 # one FDI test through the graph
+...     g.set_plant(k_fsj=0.2)           # through the plant's parameter service
+...     r2 = g.run_test()
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from ..physics.faults import Faults
+from . import teardown
+
+
+class GraphTimeout(RuntimeError):
+    pass
+
+
+class Graph:
+    """Plant + command + monitor on one executor in an isolated rclpy context.
+
+    Parameters
+    ----------
+    faults, effects, seed : the simulated actuator (plant node parameters).
+    rate : command playback speed (0 = as fast as the graph allows).
+    method, fitness, monitor_seed : identification settings of the monitor.
+    log_path : MCAP log of the monitor ('' = none).
+    executor : 'single' (``SingleThreadedExecutor``) or 'events' (``EventsExecutor``).
+    truth : write the plant's fault parameters into the log metadata (False: an
+        "undeclared" recording whose truth stays with whoever made it).
+    """
+
+    def __init__(self, faults: Faults = Faults(), effects: tuple[str, ...] = (), seed: int = 0, rate: float = 0.0,
+                 method: str = "hybrid", fitness: str = "lsq", monitor_seed: int = 0, log_path: str | Path = "",
+                 executor: str = "single", actuator_id: str = "eha", namespace: str = "", truth: bool = True,
+                 params_file: str = "", discrepancy: bool = False):
+        import rclpy
+        from rclpy.parameter import Parameter
+        from rclpy.signals import SignalHandlerOptions
+
+        from .command import CommandNode
+        from .monitor import MonitorNode
+        from .plant import PlantNode
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx, signal_handler_options=SignalHandlerOptions.NO)
+        P = Parameter
+        ns = {"namespace": namespace} if namespace else {}
+        self.nodes = []
+        try:
+            self.plant = PlantNode(context=self.ctx, parameter_overrides=[
+                P("k_gm", value=float(faults.k_gm)), P("k_fsj", value=float(faults.k_fsj)),
+                P("k_bkl", value=float(faults.k_bkl)), P("effects", value=list(effects) or [""]),
+                P("seed", value=int(seed)), P("actuator_id", value=actuator_id),
+                P("params_file", value=str(params_file))], **ns)
+            self.command = CommandNode(context=self.ctx, parameter_overrides=[
+                P("rate", value=float(rate)), P("actuator_id", value=actuator_id)], **ns)
+            plant_fqn = self.plant.get_fully_qualified_name()
+            self.monitor = MonitorNode(context=self.ctx, parameter_overrides=[
+                P("method", value=method), P("fitness", value=fitness), P("seed", value=int(monitor_seed)),
+                P("log_path", value=str(log_path)), P("plant_node", value=plant_fqn if truth else ""),
+                P("actuator_id", value=actuator_id), P("discrepancy", value=bool(discrepancy))], **ns)
+            self.nodes = [self.plant, self.command, self.monitor]
+            if executor == "events":
+                from rclpy.experimental import EventsExecutor
+                self.ex = EventsExecutor(context=self.ctx)
+            elif executor == "single":
+                from rclpy.executors import SingleThreadedExecutor
+                self.ex = SingleThreadedExecutor(context=self.ctx)
+            else:
+                raise ValueError(f"executor must be 'single' or 'events', got {executor!r}")
+            for n in self.nodes:
+                self.ex.add_node(n)
+        except BaseException:
+            self.close()
+            raise
+
+    # ---------------------------------------------------------------- driving
+    def spin_until(self, predicate, timeout_s: float, what: str) -> None:
+        end = time.monotonic() + timeout_s
+        while not predicate():
+            if time.monotonic() > end:
+                raise GraphTimeout(f"graph: {what} not reached within {timeout_s:g} s")
+            self.ex.spin_once(timeout_sec=0.01)
+
+    def _wait_truth_service(self) -> None:
+        c = self.monitor._truth_client
+        if c is not None:
+            self.spin_until(c.service_is_ready, 10.0, "plant parameter service discovered")
+
+    def run_test(self, timeout_s: float = 120.0) -> dict:
+        """Play one FDI test, wait for the monitor's verdict, return it (see ``MonitorNode.results``)."""
+        self._wait_truth_service()
+        n = len(self.monitor.results)
+        ok, why = self.command.start_test()
+        if not ok:
+            raise RuntimeError(f"graph: could not start a test: {why}")
+        self.spin_until(lambda: len(self.monitor.results) > n, timeout_s, "monitor verdict")
+        return self.monitor.results[-1]
+
+    def set_plant(self, timeout_s: float = 10.0, **values) -> None:
+        """Change plant parameters through its standard ``set_parameters`` service."""
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.parameter import Parameter
+        client = self.monitor.create_client(SetParameters, f"{self.plant.get_fully_qualified_name()}/set_parameters")
+        try:
+            self.spin_until(client.service_is_ready, timeout_s, "plant set_parameters service")
+            req = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+            fut = client.call_async(req)
+            self.spin_until(fut.done, timeout_s, "set_parameters answer")
+            bad = [r.reason for r in fut.result().results if not r.successful]
+            if bad:
+                raise ValueError(f"plant refused the parameters: {'; '.join(bad)}")
+        finally:
+            self.monitor.destroy_client(client)
+
+    # ---------------------------------------------------------------- teardown
+    def close(self) -> None:
+        teardown(getattr(self, "ex", None), getattr(self, "nodes", ()), self.ctx)
+        self.nodes = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+

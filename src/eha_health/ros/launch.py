@@ -1,0 +1,117 @@
+"""Run plant, command and monitor as three OS processes talking over DDS.
+
+>>> res = launch(Faults(0.4, 0.6, 0.4), tests=1)     # until the monitor has diagnosed one test
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from ..physics.faults import Faults
+
+def _ros_args(params: dict) -> list[str]:
+    out = ["--ros-args"]
+    for k, v in params.items():
+        if isinstance(v, bool):
+            v = "true" if v else "false"
+        elif isinstance(v, float):
+            v = repr(v)
+        elif isinstance(v, (list, tuple)):
+            v = "[" + ",".join(f"'{x}'" for x in v) + "]"
+        out += ["-p", f"{k}:={v}"]
+    return out
+
+
+def _stop(procs: list[subprocess.Popen], grace_s: float = 10.0) -> None:
+    """SIGINT (a clean rclpy shutdown), then SIGKILL whatever is left."""
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    end = time.monotonic() + grace_s
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.1, end - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def log_results(log_path: str | Path) -> list[dict]:
+    """The monitor's verdicts recorded in an MCAP log (metadata 'diagnosis/test_<id>', 'truth/test_<id>')."""
+    import json
+
+    from ..io.bagrun import truth_values
+    from ..io.mcaplog import read_bag
+    meta = read_bag(log_path, topics=[]).metadata
+    out = []
+    for name, rec in sorted(meta.items()):
+        if name.startswith("diagnosis/test_"):
+            tid = int(name.rsplit("_", 1)[1])
+            d = {k: json.loads(v) for k, v in rec.items()}
+            out.append({"test_id": tid, "diagnosis": d, "truth": truth_values(meta.get(f"truth/test_{tid}"))})
+    return sorted(out, key=lambda r: r["test_id"])
+
+
+def results_summary(results: list[dict]) -> str:
+    lines = []
+    for r in results:
+        d, t = r["diagnosis"], r["truth"]
+        est = "  ".join(f"{k.upper()}={d[k]:.3f}" + (f" (truth {t[k]:.3f})" if t else "") for k in ("k_gm", "k_fsj", "k_bkl"))
+        lines.append(f"test {r['test_id']}: {est}; {d['wall_time_s']:.2f} s")
+    return "\n".join(lines) or "no diagnosis recorded"
+
+
+def launch(faults: Faults = Faults(), effects=(), seed: int = 0, tests: int = 1, rate: float = 1.0,
+           method: str = "hybrid", log_path: str | Path = "out/launch.mcap", domain_id: int | None = None,
+           timeout_s: float = 300.0, namespace: str = "") -> dict:
+    """Run plant, command and monitor as three OS processes over DDS until ``tests`` are diagnosed.
+
+    The children inherit the environment (the ROS wheels need it); ``domain_id``
+    isolates them from other graphs on the machine.
+    """
+    if tests < 1:
+        raise ValueError(f"tests must be >= 1, got {tests}")
+    if domain_id is not None and not 0 <= domain_id <= 232:
+        raise ValueError(f"domain id must be in 0..232, got {domain_id}")
+    log_path = Path(log_path)
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    log_path.unlink(missing_ok=True)
+    env = dict(os.environ)
+    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    if domain_id is not None:
+        env["ROS_DOMAIN_ID"] = str(domain_id)
+    ns = ["-r", f"__ns:={namespace}"] if namespace else []
+    plant_fqn = (namespace.rstrip("/") + "/eha_plant") if namespace else "/eha_plant"
+    # the monitor asks for each test once the plant's answers reach it (matched, not only
+    # discovered) and the previous verdict is in: no test starts into a half-connected graph
+    cmds = {
+        "monitor": {"exit_after": tests, "log_path": str(log_path), "plant_node": plant_fqn, "method": method,
+                    "request_tests": tests},
+        "plant": {"k_gm": float(faults.k_gm), "k_fsj": float(faults.k_fsj), "k_bkl": float(faults.k_bkl),
+                  "seed": int(seed), **({"effects": list(effects)} if effects else {})},
+        "command": {"max_tests": tests, "rate": float(rate)},
+    }
+    procs = {name: subprocess.Popen([sys.executable, "-m", f"eha_health.ros.{name}", *_ros_args(p), *ns], env=env)
+             for name, p in cmds.items()}
+    end = time.monotonic() + timeout_s
+    try:
+        # the monitor exits after `tests` verdicts (the command node, done playing, may exit
+        # before it); a child that fails (e.g. a plant refusing its parameters) ends the run at once
+        while procs["monitor"].poll() is None and time.monotonic() < end:
+            if any(p.poll() not in (None, 0) for p in procs.values()):
+                break
+            time.sleep(0.1)
+        ok = procs["monitor"].returncode == 0
+    finally:
+        _stop(list(procs.values()))
+    results = log_results(log_path) if log_path.exists() else []
+    ok = ok and len(results) == tests
+    summary = results_summary(results) + f"\nlog: {log_path}" + ("" if ok else f"\nlaunch: FAILED ({len(results)}/{tests} tests diagnosed)")
+    return {"ok": ok, "results": results, "log": str(log_path), "summary": summary,
+            "returncodes": {k: p.returncode for k, p in procs.items()}}
+
+
