@@ -8,9 +8,9 @@ import pytest
 from eha_health import cli
 from eha_health.io.bagrun import write_run
 from eha_health.io.mcaplog import BagWriter, read_bag
+from eha_health.physics.faults import Faults
 from eha_health.physics.model import simulate
 from eha_health.ros.replay import replay
-from eha_health.physics.faults import Faults
 from msg_bridge import contract as C
 from msg_bridge import convert as cv
 

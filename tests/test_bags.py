@@ -5,8 +5,8 @@ import pytest
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from eha_health.io.bagrun import read_run
 from eha_health.identification.diagnose import diagnose
+from eha_health.io.bagrun import read_run
 
 BAGS = sorted((Path(__file__).parent.parent / "bags").glob("*.mcap"))
 # bags whose plant had an effect the monitor lacks, truth kept in tests/data/undeclared.yaml

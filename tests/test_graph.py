@@ -13,12 +13,12 @@ from rosbags.typesys import Stores, get_typestore
 
 from eha_health.io.bagrun import read_run
 from eha_health.io.mcaplog import read_bag
+from eha_health.physics.faults import FAULT_NAMES as NAMES
+from eha_health.physics.faults import Faults
 from eha_health.ros.graph import Graph
 from eha_health.ros.launch import launch
 from eha_health.ros.replay import replay
-from eha_health.physics.faults import Faults
 
-NAMES = ("k_gm", "k_fsj", "k_bkl")
 TOL = 0.01
 
 

@@ -131,7 +131,8 @@ def test_cli_diagnose_bad_options(tmp_path, combined):
 
 
 def test_error_bars_add_the_measured_model_form_and_noise_error(combined):
-    from eha_health.identification.diagnose import NAMES, model_error, noise_error
+    from eha_health.identification.uncertainty import model_error, noise_error
+    from eha_health.physics.faults import FAULT_NAMES as NAMES
     from eha_health.signals.residuals import noise_level
     d = diagnose(combined)
     me = model_error(estimate=d.faults.as_tuple())     # grows with the estimated damage
@@ -143,7 +144,7 @@ def test_error_bars_add_the_measured_model_form_and_noise_error(combined):
 
 
 def test_model_error_grows_with_the_estimate_as_the_file_says(tmp_path):
-    from eha_health.identification.diagnose import model_error
+    from eha_health.identification.uncertainty import model_error
     f = tmp_path / "me.yaml"
     f.write_text("model_error_sd: {k_gm: 0.001, k_fsj: 0.002, k_bkl: 0.003}\n"
                  "model_error_variance: {k_gm: [1.0e-6, 0, 0, 3.0e-6], k_fsj: [4.0e-6, 0, 0, 0], "
@@ -159,7 +160,7 @@ def test_model_error_grows_with_the_estimate_as_the_file_says(tmp_path):
 
 
 def test_noise_error_scales_with_the_measured_noise(tmp_path):
-    from eha_health.identification.diagnose import noise_error
+    from eha_health.identification.uncertainty import noise_error
     f = tmp_path / "me.yaml"
     f.write_text("model_error_sd: {k_gm: 0.001, k_fsj: 0.002, k_bkl: 0.003}\n"
                  "noise_reference_m: 5.0e-6\nnoise_error_sd: {k_gm: 0.002, k_fsj: 0.004, k_bkl: 0.006}\n")
@@ -173,7 +174,7 @@ def test_noise_error_scales_with_the_measured_noise(tmp_path):
 
 
 def test_model_error_file_is_checked(tmp_path):
-    from eha_health.identification.diagnose import model_error
+    from eha_health.identification.uncertainty import model_error
     good = tmp_path / "me.yaml"
     good.write_text("model_error_sd:\n  k_gm: 0.001\n  k_fsj: 0.002\n  k_bkl: 0.003\n")
     assert list(model_error(good)) == [0.001, 0.002, 0.003]

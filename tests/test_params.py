@@ -6,8 +6,8 @@ import pytest
 
 from eha_health import Faults, load, simulate
 from eha_health.physics import layout as L
-from eha_health.physics.params import field_table
 from eha_health.physics.packing import pack
+from eha_health.physics.params import field_table
 
 
 def test_layout_indices_match_names():

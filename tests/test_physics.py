@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from eha_health import FDISequence, Faults, Plant, load, simulate
+from eha_health import Faults, FDISequence, Plant, load, simulate
 from eha_health.physics.friction import stick_slip_velocity
 from eha_health.physics.packing import effective
 

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from eha_health.physics.model import simulate
 from eha_health.io.window import Samples, WindowError, assemble
+from eha_health.physics.model import simulate
 from msg_bridge import convert as cv
 
 NS = 1_000_000_000

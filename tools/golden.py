@@ -15,7 +15,7 @@ temporary folder and times it and this tree alternately in fresh processes (same
 ``PYTHONPATH`` picking the tree): monitor and reference real-time factors and the
 diagnosis time, each the median over ``--rounds`` rounds, with the ratio this/REV.
 
-Run from the repository root (``make golden`` and ``make golden-check`` do).
+Run from the repository root (``make golden-check`` runs ``check``).
 """
 from __future__ import annotations
 

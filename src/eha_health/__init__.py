@@ -4,11 +4,11 @@ Physics (reference and monitor EHA models), the FDI test sequence and the fault
 signatures. Nothing here imports ROS: the same code runs in a notebook, a batch
 job or a node.
 """
-from .physics.model import Plant, simulate, simulate_batch
 from .physics.faults import Faults
+from .physics.model import Plant, simulate, simulate_batch
 from .physics.params import ModelParams, load
-from .signals.response import Response
 from .physics.sequence import FDISequence
+from .signals.response import Response
 
 __all__ = ["Faults", "FDISequence", "ModelParams", "Plant", "Response", "diagnose", "load", "simulate",
            "simulate_batch"]

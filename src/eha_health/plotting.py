@@ -9,9 +9,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from .identification.signatures import signatures  # noqa: E402
+from .physics.faults import FAULT_NAMES, Faults  # noqa: E402
 from .physics.model import simulate  # noqa: E402
-from .physics.faults import Faults
 from .physics.params import ModelParams  # noqa: E402
+from .signals.channels import DISPLAY_UNITS  # noqa: E402
 from .signals.response import Response  # noqa: E402
 
 _CH = (("position", 1e3, "position [mm]"), ("velocity", 1e3, "velocity [mm/s]"),
@@ -81,9 +83,8 @@ def plot_signature_families(out_dir: str | Path, levels=(0.0, 0.2, 0.4, 0.6, 0.8
 
 def trend_table(levels=(0.0, 0.2, 0.4, 0.6, 0.8, 1.0), params: ModelParams | None = None) -> list[dict]:
     """Signature values per single fault and level (rows for a CSV or JSON report)."""
-    from .identification.signatures import signatures
     rows = []
-    for fault in ("k_gm", "k_fsj", "k_bkl"):
+    for fault in FAULT_NAMES:
         for k in levels:
             s = signatures(simulate(faults=Faults(**{fault: k}), params=params))
             rows.append({"fault": fault, "level": k, **s.as_dict()})
@@ -117,7 +118,6 @@ def plot_diagnosis(measured: Response, diagnosis, path: str | Path):
 def plot_discrepancy(rep, path: str | Path):
     """Residual (fitted - measured) per channel before and after augmentation with the measured
     noise band, for a rig the frequency response error of both models, and the ranking."""
-    from .signals.residuals import DISPLAY_UNITS
     chans = list(rep.measured)
     fr = rep.frequency_response or []
     rows = len(chans) + 1 + bool(fr)

@@ -13,12 +13,11 @@ import time
 
 import numpy as np
 
-from ..physics.model import simulate
+from ..discrepancy.loop import analyse_fdi_test
+from ..discrepancy.report import UNEXPLAINED
 from ..physics.faults import Faults
+from ..physics.model import simulate
 from ..physics.params import ModelParams, load
-
-CHANNELS = ("position", "velocity", "pressure", "current")
-
 
 #: Undeclared effects of the synthetic bench: (candidate that should be found, how the plant gets it).
 EFFECTS: tuple[tuple[str, object], ...] = (
@@ -41,7 +40,6 @@ FAULT_SETS = (Faults(0.0, 0.0, 0.0), Faults(0.4, 0.5, 0.0), Faults(0.3, 0.4, 0.3
 
 def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None) -> dict:
     """Run the loop (max one effect) on every effect x fault set and on noise-only runs."""
-    from ..discrepancy.loop import UNEXPLAINED, analyse_fdi_test
     cases = []
     ref = load("reference")
     rng = np.random.default_rng(seed)
@@ -50,7 +48,7 @@ def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None) -> d
     for i, (name, make, f) in enumerate(todo):
         p: ModelParams = make(ref).with_effect_names(["sensor_noise"])
         r = simulate(params=p, faults=f, seed=seed + 100 + i)
-        truth = dict(zip(("k_gm", "k_fsj", "k_bkl"), f.as_tuple()))
+        truth = f.as_dict()
         t0 = time.perf_counter()
         rep = analyse_fdi_test(r, max_effects=1, truth=truth)
         cases.append({

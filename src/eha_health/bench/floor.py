@@ -9,27 +9,33 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..discrepancy.candidates import BY_NAME
+from ..discrepancy.evidence import candidate_grid
+from ..identification.diagnose import diagnose
+from ..identification.knobs import FAULT_KNOBS
+from ..identification.local import least_squares
+from ..identification.problem import KnobModel, Problem
+from ..identification.record import Record
+from ..identification.residual import Residual
 from ..physics.faults import Faults
 from ..physics.model import simulate
 from ..physics.params import load
+from ..signals.channels import MEASURED
 from .discrepancy import EFFECTS
-
-CHANNELS = ("position", "velocity", "pressure", "current")
 
 
 def residual_floor(n: int = 12, seed: int = 2024, progress=None) -> dict:
     """Max per-channel diagnosis residual RMS [SI] over ``n`` clean random-fault reference runs."""
-    from ..identification.diagnose import diagnose
     rng = np.random.default_rng(seed)
     rows = []
     for i in range(n):
         f = Faults(*rng.uniform(0.0, 1.0, 3))
         d = diagnose(simulate(faults=f))
-        rows.append([d.rms[c] for c in CHANNELS])
+        rows.append([d.rms[c] for c in MEASURED])
         if progress:
             progress(f"floor: run {i + 1}/{n}")
     r = np.array(rows)
-    return {"floor": {c: float(v) for c, v in zip(CHANNELS, r.max(0))}, "runs": n, "seed": seed}
+    return {"floor": {c: float(v) for c, v in zip(MEASURED, r.max(0))}, "runs": n, "seed": seed}
 
 
 def effect_floor(n: int = 6, seed: int = 2025, progress=None) -> dict:
@@ -40,9 +46,6 @@ def effect_floor(n: int = 6, seed: int = 2025, progress=None) -> dict:
     from a grid scan, the faults from the truth: the best this model class can do). What is left
     is the augmented model's own model-form error, the floor of the loop's next round.
     """
-    from ..discrepancy.candidates import BY_NAME
-    from ..discrepancy.loop import candidate_grid
-    from ..identification.problem import FAULT_KNOBS, AugmentedModel, Record, Residual, fit
     rng = np.random.default_rng(seed)
     ref, mon = load("reference"), load("monitor")
     out = {}
@@ -52,15 +55,15 @@ def effect_floor(n: int = 6, seed: int = 2025, progress=None) -> dict:
         for i in range(n):
             f = Faults(*rng.uniform(0.0, 1.0, 3))
             rec = Record.from_response(simulate(params=make(ref), faults=f))
-            model = AugmentedModel(mon, FAULT_KNOBS + cand.knobs, rec)
+            model = KnobModel(mon, FAULT_KNOBS + cand.knobs, rec)
             res = Residual(rec)
             G = candidate_grid(np.array(f.as_tuple()), cand, 48)
-            x0 = G[int(np.argmin([res.rss(o) for o in model.run(G)]))]
-            rms = res.rms(fit(model, res, x0, max_nfev=40).output)
-            rows.append([rms[c] for c in CHANNELS])
+            x0 = G[int(np.argmin([res.cost(o) for o in model.run(G)]))]
+            rms = res.rms(least_squares(Problem(model, res), x0, max_nfev=40).output)
+            rows.append([rms[c] for c in MEASURED])
             if progress:
                 progress(f"effect floor: {name} ({e + 1}/{len(EFFECTS)}), run {i + 1}/{n}")
-        out[name] = {c: float(v) for c, v in zip(CHANNELS, np.max(rows, axis=0))}
+        out[name] = {c: float(v) for c, v in zip(MEASURED, np.max(rows, axis=0))}
     return {"effect_floor": out, "runs": n, "seed": seed}
 
 

@@ -6,16 +6,17 @@ from __future__ import annotations
 
 import tempfile
 import time
+from pathlib import Path
 
 from ..physics.faults import Faults
 from ..physics.sequence import FDISequence
+from ..ros.graph import Graph
+
 
 def graph(executors=("single", "events"), rate: float = 0.0, progress=None) -> dict:
     """Wall time of one full FDI test through the in-process node graph (command, plant,
     monitor recording to MCAP, diagnosis) and the message throughput, per executor."""
-    from pathlib import Path
 
-    from ..ros.graph import Graph
     res = {"rate": rate, "samples_expected": int(round(FDISequence().duration * 1000)), "runs": {}}
     with tempfile.TemporaryDirectory() as tmp:
         for ex in executors:

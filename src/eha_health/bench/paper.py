@@ -15,13 +15,17 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import differential_evolution
+from scipy.optimize import differential_evolution, nnls
 
-from ..identification.fitness import Measured, make_fitness
-from ..identification.diagnose import NAMES, UPPER, Evaluator, diagnose
+from ..identification.diagnose import DEFAULT_METHOD, METHODS, diagnose
+from ..identification.fitness import make_fitness
+from ..identification.knobs import FAULT_KNOBS
+from ..identification.problem import KnobModel, Problem
+from ..identification.record import fdi_record
+from ..physics.faults import FAULT_NAMES, Faults
 from ..physics.model import simulate
-from ..physics.faults import Faults
 from ..physics.params import load
+from ..physics.sequence import FDISequence
 from ..signals.residuals import noise_level
 
 # ---- the paper's published values
@@ -49,7 +53,6 @@ PAPER_COMBINED = {
            (.99, .99, .01869), (.99, .00001, .99), (.0435, .99, .99), (.99, .99, .99)],
 }
 PAPER_TABLE6 = {"deterministic": (0.21, 2.5, 2.0, 1.8), "ga": (0.21, 4.0, 1.0, 1.6)}  # FSJ, GM, BKL, mean [%]
-KEYS = ("gm", "fsj", "bkl")
 
 
 def single_cases() -> list[tuple[float, float, float]]:
@@ -87,17 +90,18 @@ class Row:
 
 def run_de(resp, seed: int, fitness: str = "lsq"):
     """scipy differential_evolution on the same fitness (vectorised over the batch simulator)."""
-    meas = Measured.from_response(resp)
-    fit = make_fitness(fitness, meas)
-    ev = Evaluator(meas)
+    seq = FDISequence()
+    rec = fdi_record(resp, seq)
+    model = KnobModel(load("monitor"), FAULT_KNOBS, rec)
+    problem = Problem(model, make_fitness(fitness, rec, seq))
     t0 = time.perf_counter()
-    sol = differential_evolution(lambda X: fit.costs(ev.run(np.asarray(X).T)), [(0.0, UPPER)] * 3, seed=seed,
+    sol = differential_evolution(lambda X: problem.costs(np.asarray(X).T), list(zip(model.lower, model.upper)), seed=seed,
                                  vectorized=True, updating="deferred", tol=1e-8, atol=0, maxiter=200,
                                  popsize=15, polish=False)
-    return tuple(sol.x), time.perf_counter() - t0, ev.n
+    return tuple(sol.x), time.perf_counter() - t0, model.runs
 
 
-def run_bench(methods=("deterministic", "ga", "hybrid"), fitness: str = "lsq", noise: bool = False,
+def run_bench(methods=METHODS, fitness: str = "lsq", noise: bool = False,
               n_random: int = 0, seed: int = 0, de: bool = True, progress=None) -> dict:
     """Run every case with every method; returns a JSON-able dict of rows and summaries."""
     params = load("reference")
@@ -115,9 +119,9 @@ def run_bench(methods=("deterministic", "ga", "hybrid"), fitness: str = "lsq", n
         rows = []
         for c, group in cases:
             d = diagnose(responses[c], method=m, fitness=fitness, seed=seed)
-            rows.append(Row(c, d.faults.as_tuple(), tuple(d.std[k] for k in NAMES),
+            rows.append(Row(c, d.faults.as_tuple(), tuple(d.std[k] for k in FAULT_NAMES),
                             d.wall_time_s, d.evaluations, group,
-                            tuple(d.std_stat[k] for k in NAMES),
+                            tuple(d.std_stat[k] for k in FAULT_NAMES),
                             noise_level(responses[c].position)))
             if progress:
                 progress(f"{m:13s} {group:8s} true {c} -> est ({rows[-1].est[0]:.4f}, {rows[-1].est[1]:.4f}, "
@@ -205,9 +209,9 @@ def format_markdown(res: dict, command: str) -> str:
                 cov = s["coverage_2sd_random"]
                 L.append(f"| {m} | {' | '.join(_pct_cells(t, '{:.3f}'))} | {t['max_abs_err']:.4f} | "
                          f"{_f(cov, '{:.0%}')} |")
-    if "scipy_de" in methods and "hybrid" in methods:
-        a, b = methods["hybrid"], methods["scipy_de"]
-        L += ["", f"Peer ratio (scipy differential_evolution / hybrid): max abs error "
+    if "scipy_de" in methods and DEFAULT_METHOD in methods:
+        a, b = methods[DEFAULT_METHOD], methods["scipy_de"]
+        L += ["", f"Peer ratio (scipy differential_evolution / {DEFAULT_METHOD}): max abs error "
                   f"{b['max_abs_err_all'] / max(a['max_abs_err_all'], 1e-12):.2f}x, mean wall time "
                   f"{b['wall_time_s_mean'] / a['wall_time_s_mean']:.2f}x."]
     for m, s in methods.items():
@@ -218,6 +222,9 @@ def format_markdown(res: dict, command: str) -> str:
             pe = " / ".join(_f(p, "{:+.3f}") if p is not None else f"abs {a:+.4f}" for p, a in zip(x["pct_err"], x["abs_err"]))
             L.append(f"| {x['group']} | {x['true'][0]:g} | {x['true'][1]:g} | {x['true'][2]:g} | {x['est'][0]:.5f} | "
                      f"{x['est'][1]:.5f} | {x['est'][2]:.5f} | {pe} | {_f(x['mean_pct_err'], '{:.3f}')} | {x['wall_time_s']:.2f} |")
+        if m in PAPER_SINGLE:
+            L += ["", f"Paper's single-fault estimates for {m} (Table {'1' if m == 'deterministic' else '3'}): " +
+                  "; ".join(f"K_{f.upper()} {t:g} -> {e:g}" for f, rows in PAPER_SINGLE[m].items() for t, e in rows)]
         if m in PAPER_COMBINED:
             L += ["", f"Paper's combined-case estimates for {m} (Table {'4' if m == 'deterministic' else '5'}): " +
                   "; ".join(f"{c} -> {e}" for c, e in zip(COMBINED, PAPER_COMBINED[m]))]
@@ -249,7 +256,7 @@ def model_error_yaml(res: dict, method: str, command: str, previous: dict | None
     parts, sqrt(mean(err^2) - model_sd^2 - mean(sd_stat^2)), at the mean measured position
     noise ``noise_reference_m``.
     """
-    names = NAMES
+    names = FAULT_NAMES
     data = dict(previous or {})
     rows = res["methods"][method]["rows"]
     e2 = np.array([r["abs_err"] for r in rows]) ** 2          # squared error per run and coefficient
@@ -269,7 +276,6 @@ def model_error_yaml(res: dict, method: str, command: str, previous: dict | None
         data["noise_reference_m"] = float(np.mean([r["noise_position"] for r in rows]))
         data["noise_error_command"] = f"{command}  ({len(rows)} noisy runs, {method}, fitness {res['fitness']})"
     else:
-        from scipy.optimize import nnls
         data["model_error_sd"] = dict(zip(names, np.sqrt(err2)))
         data["model_error_variance"] = {n: list(nnls(design, e2[:, i])[0]) for i, n in enumerate(names)}
         data["model_error_command"] = f"{command}  ({len(rows)} clean runs, {method}, fitness {res['fitness']})"

@@ -5,16 +5,19 @@ Figures, not assertions: run ``eha-health bench speed [--json]``.
 from __future__ import annotations
 
 import json
+import multiprocessing as mp
 import os
 import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 
+import numba
 import numpy as np
 
-from ..physics.model import Plant, simulate_batch
 from ..physics.faults import Faults
+from ..physics.model import Plant, simulate_batch
 from ..physics.params import load
 from ..physics.sequence import FDISequence
 
@@ -52,7 +55,6 @@ def _best(fn, repeat: int) -> float:
 
 
 def _pool_worker_init() -> None:
-    import numba
     numba.set_num_threads(1)     # one process per core: no threads inside
 
 
@@ -68,9 +70,6 @@ def ga_generation(pop: int = 20, repeat: int = 5) -> dict:
     (one single-threaded run per individual, one worker per core). Pool start-up and
     compilation are excluded (warmed up first); each map still ships the command and
     returns the outputs, as a GA would."""
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
-
     seq = FDISequence()
     cmd = seq.command(seq.times(1000.0))
     mon = load("monitor")
@@ -88,8 +87,6 @@ def ga_generation(pop: int = 20, repeat: int = 5) -> dict:
 
 def speed(repeat: int = 7, batch: int = 40, with_compile: bool = True) -> dict:
     """Measure; returns a dict of figures (seconds, ratios)."""
-    import numba
-
     seq = FDISequence()
     t = seq.times(1000.0)
     cmd = seq.command(t)

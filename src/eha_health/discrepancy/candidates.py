@@ -30,7 +30,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ..identification.problem import Knob
+from ..identification.knobs import Knob
 from ..physics.params import ModelParams
 
 
@@ -137,13 +137,3 @@ CANDIDATES: tuple[Candidate, ...] = (
 )
 
 BY_NAME = {c.name: c for c in CANDIDATES}
-
-
-def select(names) -> tuple[Candidate, ...]:
-    """Candidates by name (``ValueError`` naming an unknown one)."""
-    out = []
-    for n in names:
-        if n not in BY_NAME:
-            raise ValueError(f"unknown candidate effect {n!r}; known: {', '.join(BY_NAME)}")
-        out.append(BY_NAME[n])
-    return tuple(out)

@@ -14,11 +14,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..signals import frequency
-from ..identification.problem import Knob, Record
-from .candidates import CANDIDATES
-from .loop import DiscrepancyReport, Settings, quantile_segments, run_loop
+from ..identification.knobs import Knob
+from ..identification.record import Record
 from ..physics.params import ModelParams, load
+from ..signals import frequency
+from .candidates import CANDIDATES
+from .loop import quantile_segments, run_loop
+from .report import DiscrepancyReport
+from .settings import Settings
 
 #: Nominal parameters calibrated to a rig (start values: the shipped monitor).
 RIG_KNOBS = (

@@ -7,6 +7,7 @@ metadata, if any (simulated runs only). No ROS install is needed.
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -15,9 +16,10 @@ import numpy as np
 from msg_bridge import contract as C
 from msg_bridge import convert as cv
 
-from .mcaplog import Bag, BagError, read_bag
-from ..signals.response import Response
+from ..physics.faults import FAULT_NAMES
 from ..physics.sequence import FDISequence
+from ..signals.response import Response
+from .mcaplog import Bag, BagError, read_bag
 from .window import NS, Samples, WindowError, assemble
 
 SIGNALS = (C.COMMAND, C.JOINT_STATE, C.PRESSURE, C.CURRENT)
@@ -37,7 +39,19 @@ def truth_values(record: dict[str, str] | None) -> dict[str, float] | None:
     """The fault coefficients of a ``truth/test_<id>`` metadata record (strings) as numbers."""
     if not record:
         return None
-    return {k: float(record[k]) for k in ("k_gm", "k_fsj", "k_bkl")}
+    return {k: float(record[k]) for k in FAULT_NAMES}
+
+
+def recorded_results(log_path: str | Path) -> list[dict]:
+    """The monitor's verdicts recorded in an MCAP log (metadata 'diagnosis/test_<id>', 'truth/test_<id>')."""
+    meta = read_bag(log_path, topics=[]).metadata
+    out = []
+    for name, rec in sorted(meta.items()):
+        if name.startswith("diagnosis/test_"):
+            tid = int(name.rsplit("_", 1)[1])
+            d = {k: json.loads(v) for k, v in rec.items()}
+            out.append({"test_id": tid, "diagnosis": d, "truth": truth_values(meta.get(f"truth/test_{tid}"))})
+    return sorted(out, key=lambda r: r["test_id"])
 
 
 def resolve_topics(types: dict[str, str], path, namespace: str | None = None) -> dict[str, str]:

@@ -13,11 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..signals.response import Response
 from ..physics.sequence import FDISequence
+from ..signals.channels import MEASURED
+from ..signals.response import Response
 
 NS = 1_000_000_000
-MEASURED = ("position", "velocity", "pressure", "current")
 
 
 class WindowError(ValueError):

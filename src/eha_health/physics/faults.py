@@ -10,6 +10,17 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+#: Names of the coefficients, in the order of every vector of them (K_GM, K_FSJ, K_BKL).
+FAULT_NAMES = ("k_gm", "k_fsj", "k_bkl")
+#: Short names (command line, history files): ``gm=0.4,fsj=0.6``.
+FAULT_KEYS = tuple(n.removeprefix("k_") for n in FAULT_NAMES)
+#: What each coefficient measures.
+FAULT_DOCS = {"k_gm": "torque-motor demagnetisation", "k_fsj": "jack static-friction rise",
+              "k_bkl": "linkage backlash"}
+#: Upper bound of every coefficient a search or a plant accepts: beyond-limit damage is findable.
+FAULT_UPPER = 1.5
+
+
 @dataclass(frozen=True)
 class Faults:
     """Progressive fault coefficients: 0 healthy, 1 limit, > 1 beyond-limit damage."""
@@ -18,7 +29,7 @@ class Faults:
     k_bkl: float = 0.0
 
     def __post_init__(self):
-        for name in ("k_gm", "k_fsj", "k_bkl"):
+        for name in FAULT_NAMES:
             v = getattr(self, name)
             if not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ValueError(f"fault coefficient {name} must be a finite number, got {v!r}")
@@ -28,10 +39,13 @@ class Faults:
     def as_tuple(self) -> tuple[float, float, float]:
         return (self.k_gm, self.k_fsj, self.k_bkl)
 
+    def as_dict(self) -> dict[str, float]:
+        return dict(zip(FAULT_NAMES, self.as_tuple()))
+
     @classmethod
     def parse(cls, text: str) -> "Faults":
         """Parse ``"gm=0.4,fsj=0.6,bkl=0.4"`` (missing keys are 0)."""
-        vals = {"gm": 0.0, "fsj": 0.0, "bkl": 0.0}
+        vals = dict.fromkeys(FAULT_KEYS, 0.0)
         for part in filter(None, (s.strip() for s in text.split(","))):
             if "=" not in part:
                 raise ValueError(f"fault spec {part!r}: expected name=value (gm, fsj, bkl)")
@@ -43,6 +57,6 @@ class Faults:
                 vals[k] = float(v)
             except ValueError:
                 raise ValueError(f"fault {k}: {v!r} is not a number") from None
-        return cls(vals["gm"], vals["fsj"], vals["bkl"])
+        return cls(*(vals[k] for k in FAULT_KEYS))
 
 

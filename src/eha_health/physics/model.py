@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import kernel
-from .layout import N_S, O_CMD, O_CUR, O_P12, O_POS, O_VEL, O_XJ, O_XS
-from .faults import Faults
-from .params import ModelParams, load
-from .packing import pack
 from ..signals.response import Response
+from . import kernel
+from .faults import Faults
+from .layout import N_OUT, N_S, O_CMD, O_CUR, O_P12, O_POS, O_VEL, O_XJ, O_XS, P_NSUB
+from .packing import pack
+from .params import ModelParams, load
 from .sensors import acquisition, delay_buffer
 from .sequence import FDISequence
 
@@ -58,7 +58,7 @@ class Plant:
 
     @property
     def steps_per_sample(self) -> int:
-        return int(self.p[1])
+        return int(self.p[P_NSUB])
 
     def reset(self) -> None:
         self.state = np.zeros(N_S)
@@ -124,6 +124,6 @@ def simulate_packed(P: np.ndarray, command: np.ndarray, load: np.ndarray | None 
     ld = np.zeros(0) if load is None else np.ascontiguousarray(load, dtype=float)
     if len(ld) and len(ld) != len(cmd):
         raise ValueError(f"load has {len(ld)} samples but the command has {len(cmd)}")
-    out = np.zeros((len(P), len(cmd), 7))
+    out = np.zeros((len(P), len(cmd), N_OUT))
     kernel.run_batch(np.ascontiguousarray(P, dtype=float), cmd, ld, out)
     return out

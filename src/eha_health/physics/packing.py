@@ -15,6 +15,7 @@ from . import layout as L
 from .faults import Faults
 from .params import ModelParams
 
+
 def effective(params: ModelParams, faults: Faults) -> dict[str, float]:
     """Physical values after the faults are applied (GM or static gain, friction, backlash)."""
     lim = params.fault_limits

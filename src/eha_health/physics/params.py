@@ -27,7 +27,6 @@ from typing import Any
 import yaml
 
 
-
 def _f(unit: str, doc: str, lo: float | None = None, hi: float | None = None,
        lo_open: bool = False):
     """Field metadata: unit, one-line physics doc and the admissible range."""

@@ -10,19 +10,24 @@ Topic names, types and QoS come from :mod:`msg_bridge.contract`; see docs/interf
 """
 from __future__ import annotations
 
+import importlib
+import sys
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
 from msg_bridge.contract import Topic
 
 
 def qos(topic: Topic):
     """RELIABLE, KEEP_LAST(depth), TRANSIENT_LOCAL when latched."""
-    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
     return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=topic.depth, reliability=ReliabilityPolicy.RELIABLE,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if topic.latched else DurabilityPolicy.VOLATILE)
 
 
 def msg_class(topic: Topic):
     """The rclpy message class of a contract topic."""
-    import importlib
     pkg, _, name = topic.type.split("/")
     return getattr(importlib.import_module(f"{pkg}.msg"), name)
 
@@ -30,7 +35,6 @@ def msg_class(topic: Topic):
 def teardown(executor, nodes, context=None) -> None:
     """Stop in the order rclpy 7.1.6 needs (ros2-from-pypi notes): executor, then each
     node (its own ``close`` first: worker, log), then the context."""
-    import rclpy
     if executor is not None:
         executor.shutdown()
     for n in nodes:
@@ -46,10 +50,6 @@ def run_node(factory, args=None) -> int:
 
     Exit codes: 0 done or interrupted, 1 a node's own error, 2 a parameter it refused at start.
     """
-    import sys
-
-    import rclpy
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     rclpy.init(args=args)
     try:
         node = factory()

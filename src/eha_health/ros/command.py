@@ -15,8 +15,8 @@ from __future__ import annotations
 import time
 
 import numpy as np
-
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.duration import Duration
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 
@@ -26,7 +26,6 @@ from msg_bridge.convert import NS
 
 from ..physics.sequence import FDISequence
 from . import msg_class, qos, run_node
-
 
 
 class CommandNode(Node):
@@ -179,7 +178,6 @@ class CommandNode(Node):
         """Before the node goes: wait (bounded) until every subscriber has acknowledged the
         samples and marks already published; a process that exits right after its last
         sample would otherwise take the end of the test with it."""
-        from rclpy.duration import Duration
         for pub in (self.pub_cmd, self.pub_win):
             pub.wait_for_all_acked(Duration(seconds=timeout_s))
 

@@ -1,5 +1,6 @@
-"""Run the plant, command and monitor nodes: in one process (:class:`Graph`) or as
-three OS processes talking over DDS (:func:`launch`).
+"""Run the plant, command and monitor nodes in one process, on one executor (:class:`Graph`).
+
+The same nodes as three OS processes over DDS: :func:`eha_health.ros.launch.launch`.
 
 >>> with Graph(faults=Faults(0.4, 0.6, 0.4), log_path="out/run.mcap") as g:
 ...     r = g.run_test()                 # one FDI test through the graph
@@ -11,8 +12,19 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import rclpy
+from rcl_interfaces.srv import SetParameters
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
+from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
+
+from ..identification.diagnose import DEFAULT_METHOD
 from ..physics.faults import Faults
 from . import teardown
+from .command import CommandNode
+from .monitor import MonitorNode
+from .plant import PlantNode
 
 
 class GraphTimeout(RuntimeError):
@@ -34,16 +46,9 @@ class Graph:
     """
 
     def __init__(self, faults: Faults = Faults(), effects: tuple[str, ...] = (), seed: int = 0, rate: float = 0.0,
-                 method: str = "hybrid", fitness: str = "lsq", monitor_seed: int = 0, log_path: str | Path = "",
+                 method: str = DEFAULT_METHOD, fitness: str = "lsq", monitor_seed: int = 0, log_path: str | Path = "",
                  executor: str = "single", actuator_id: str = "eha", namespace: str = "", truth: bool = True,
                  params_file: str = "", discrepancy: bool = False):
-        import rclpy
-        from rclpy.parameter import Parameter
-        from rclpy.signals import SignalHandlerOptions
-
-        from .command import CommandNode
-        from .monitor import MonitorNode
-        from .plant import PlantNode
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, signal_handler_options=SignalHandlerOptions.NO)
         P = Parameter
@@ -64,10 +69,8 @@ class Graph:
                 P("actuator_id", value=actuator_id), P("discrepancy", value=bool(discrepancy))], **ns)
             self.nodes = [self.plant, self.command, self.monitor]
             if executor == "events":
-                from rclpy.experimental import EventsExecutor
                 self.ex = EventsExecutor(context=self.ctx)
             elif executor == "single":
-                from rclpy.executors import SingleThreadedExecutor
                 self.ex = SingleThreadedExecutor(context=self.ctx)
             else:
                 raise ValueError(f"executor must be 'single' or 'events', got {executor!r}")
@@ -102,8 +105,6 @@ class Graph:
 
     def set_plant(self, timeout_s: float = 10.0, **values) -> None:
         """Change plant parameters through its standard ``set_parameters`` service."""
-        from rcl_interfaces.srv import SetParameters
-        from rclpy.parameter import Parameter
         client = self.monitor.create_client(SetParameters, f"{self.plant.get_fully_qualified_name()}/set_parameters")
         try:
             self.spin_until(client.service_is_ready, timeout_s, "plant set_parameters service")

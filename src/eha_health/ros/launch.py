@@ -1,4 +1,4 @@
-"""Run plant, command and monitor as three OS processes talking over DDS.
+"""Run plant, command and monitor as three OS processes talking over DDS (``eha-health launch``).
 
 >>> res = launch(Faults(0.4, 0.6, 0.4), tests=1)     # until the monitor has diagnosed one test
 """
@@ -11,7 +11,11 @@ import sys
 import time
 from pathlib import Path
 
+from ..identification.diagnose import DEFAULT_METHOD
+from ..io.bagrun import recorded_results
+from ..monitoring.health import results_summary
 from ..physics.faults import Faults
+
 
 def _ros_args(params: dict) -> list[str]:
     out = ["--ros-args"]
@@ -40,33 +44,8 @@ def _stop(procs: list[subprocess.Popen], grace_s: float = 10.0) -> None:
             p.wait()
 
 
-def log_results(log_path: str | Path) -> list[dict]:
-    """The monitor's verdicts recorded in an MCAP log (metadata 'diagnosis/test_<id>', 'truth/test_<id>')."""
-    import json
-
-    from ..io.bagrun import truth_values
-    from ..io.mcaplog import read_bag
-    meta = read_bag(log_path, topics=[]).metadata
-    out = []
-    for name, rec in sorted(meta.items()):
-        if name.startswith("diagnosis/test_"):
-            tid = int(name.rsplit("_", 1)[1])
-            d = {k: json.loads(v) for k, v in rec.items()}
-            out.append({"test_id": tid, "diagnosis": d, "truth": truth_values(meta.get(f"truth/test_{tid}"))})
-    return sorted(out, key=lambda r: r["test_id"])
-
-
-def results_summary(results: list[dict]) -> str:
-    lines = []
-    for r in results:
-        d, t = r["diagnosis"], r["truth"]
-        est = "  ".join(f"{k.upper()}={d[k]:.3f}" + (f" (truth {t[k]:.3f})" if t else "") for k in ("k_gm", "k_fsj", "k_bkl"))
-        lines.append(f"test {r['test_id']}: {est}; {d['wall_time_s']:.2f} s")
-    return "\n".join(lines) or "no diagnosis recorded"
-
-
 def launch(faults: Faults = Faults(), effects=(), seed: int = 0, tests: int = 1, rate: float = 1.0,
-           method: str = "hybrid", log_path: str | Path = "out/launch.mcap", domain_id: int | None = None,
+           method: str = DEFAULT_METHOD, log_path: str | Path = "out/launch.mcap", domain_id: int | None = None,
            timeout_s: float = 300.0, namespace: str = "") -> dict:
     """Run plant, command and monitor as three OS processes over DDS until ``tests`` are diagnosed.
 
@@ -108,7 +87,7 @@ def launch(faults: Faults = Faults(), effects=(), seed: int = 0, tests: int = 1,
         ok = procs["monitor"].returncode == 0
     finally:
         _stop(list(procs.values()))
-    results = log_results(log_path) if log_path.exists() else []
+    results = recorded_results(log_path) if log_path.exists() else []
     ok = ok and len(results) == tests
     summary = results_summary(results) + f"\nlog: {log_path}" + ("" if ok else f"\nlaunch: FAILED ({len(results)}/{tests} tests diagnosed)")
     return {"ok": ok, "results": results, "log": str(log_path), "summary": summary,

@@ -23,28 +23,26 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from rcl_interfaces.msg import ParameterDescriptor
+from rcl_interfaces.srv import GetParameters
 from rclpy.node import Node
+from rclpy.parameter import parameter_value_to_python
 from rclpy.serialization import deserialize_message
+from std_srvs.srv import Trigger
 
 from msg_bridge import contract as C
 from msg_bridge import convert as cv
-from msg_bridge.convert import NS
 
-from ..identification.diagnose import METHODS, NAMES, diagnose
-from ..io.window import Samples, WindowError, assemble
+from ..identification.diagnose import DEFAULT_METHOD, METHODS
+from ..identification.fitness import FITNESSES
+from ..io.mcaplog import BagWriter
+from ..monitoring.analysis import analyse_window
+from ..monitoring.health import HealthPolicy, Verdict
+from ..monitoring.windows import WindowTracker
+from ..physics.faults import FAULT_NAMES
 from . import msg_class, qos, run_node
 
-#: Samples kept per channel (60 s at 1 kHz): older ones can no longer be in a window.
-BUFFER = 60_000
-
-
-def _diagnose(r, loop: bool, max_effects: int, **args):
-    """Worker: the diagnosis, then (optionally) the discrepancy loop started from it."""
-    d = diagnose(r, **args)
-    if not loop:
-        return d, None
-    from ..discrepancy.loop import analyse_fdi_test
-    return d, analyse_fdi_test(r, max_effects=max_effects, diagnosis=d)
+#: How long a window waits for late samples once none arrives [s].
+WINDOW_TIMEOUT_S = 2.0
 
 
 class MonitorNode(Node):
@@ -52,8 +50,8 @@ class MonitorNode(Node):
         super().__init__(name, **kw)
         d = ParameterDescriptor
         self.declare_parameter("actuator_id", "eha", d(description="hardware_id of the diagnostic status"))
-        self.declare_parameter("method", "hybrid", d(description="identification method: " + ", ".join(METHODS)))
-        self.declare_parameter("fitness", "lsq", d(description="fitness function: lsq or paper"))
+        self.declare_parameter("method", DEFAULT_METHOD, d(description="identification method: " + ", ".join(METHODS)))
+        self.declare_parameter("fitness", "lsq", d(description="fitness function: " + ", ".join(FITNESSES)))
         self.declare_parameter("seed", 0, d(description="seed of the identification (GA)"))
         self.declare_parameter("warn_level", 0.3, d(description="WARN when a coefficient reaches this"))
         self.declare_parameter("error_level", 0.7, d(description="ERROR when a coefficient reaches this"))
@@ -62,7 +60,7 @@ class MonitorNode(Node):
         self.declare_parameter("log_dir", ".", d(description="directory of the 'auto' log"))
         self.declare_parameter("plant_node", "", d(
             description="simulated runs: node whose k_* parameters are the truth (into MCAP metadata)"))
-        self.declare_parameter("window_timeout_s", 2.0, d(
+        self.declare_parameter("window_timeout_s", WINDOW_TIMEOUT_S, d(
             description="after the end mark, wait for late samples until none has come for this long [s]"))
         self.declare_parameter("diagnostics_period_s", 1.0, d(description="re-publish the status this often [s]"))
         self.declare_parameter("exit_after", 0, d(description="stop after this many windows (0: run on)"))
@@ -75,16 +73,13 @@ class MonitorNode(Node):
                         "each once every input topic has a matched publisher (0: never ask)"))
 
         self.log = self._open_log()
-        self._buf = {c: deque(maxlen=BUFFER) for c in ("command", "position", "velocity", "pressure", "current")}
-        self._last = {c: -1 for c in self._buf}
-        self._windows: dict[int, dict] = {}
-        self._queue: deque = deque()          # windows waiting for their samples
+        self.windows = WindowTracker()
         self._futures: deque = deque()        # diagnoses running in the worker
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eha-diagnose")
         self.results: list[dict] = []
         self.bad_messages = 0
         self.received: Counter = Counter()   # messages per input topic
-        self._status = ("STALE", "no test window diagnosed yet", {})
+        self._status = Verdict("STALE", "no test window diagnosed yet")
 
         self.pub_diag = self.create_publisher(msg_class(C.DIAGNOSTICS), C.DIAGNOSTICS.name, qos(C.DIAGNOSTICS))
         self.pub_health = self.create_publisher(msg_class(C.HEALTH), C.HEALTH.name, qos(C.HEALTH))
@@ -99,11 +94,9 @@ class MonitorNode(Node):
         self._next_request = 0.0
         self._start_client = None
         if int(self.get_parameter("request_tests").value) > 0:
-            from std_srvs.srv import Trigger
             self._start_client = self.create_client(Trigger, "eha/start_test")
         self._truth_client = None
         if self.get_parameter("plant_node").value:
-            from rcl_interfaces.srv import GetParameters
             self._truth_client = self.create_client(
                 GetParameters, f"{self.get_parameter('plant_node').value.rstrip('/')}/get_parameters")
         self.create_timer(0.05, self._poll)
@@ -116,7 +109,6 @@ class MonitorNode(Node):
             return None
         if path == "auto":
             path = Path(self.get_parameter("log_dir").value) / time.strftime("eha_monitor_%Y%m%d-%H%M%S.mcap")
-        from ..io.mcaplog import BagWriter
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         self.log_path = Path(path)
         w = BagWriter(path)
@@ -146,8 +138,7 @@ class MonitorNode(Node):
 
     # ---------------------------------------------------------------- inputs
     def _put(self, name: str, ns: int, v: float) -> None:
-        self._buf[name].append((ns, v))
-        self._last[name] = max(self._last[name], ns)
+        self.windows.put(name, ns, v)
 
     def _on_command(self, msg):
         ns, u = cv.command_from_msg(msg)
@@ -166,19 +157,14 @@ class MonitorNode(Node):
 
     def _on_window(self, msg):
         ns, event, tid = cv.window_from_msg(msg)
-        w = self._windows.setdefault(tid, {"id": tid})
-        w[event] = ns
+        self.windows.mark(ns, event, tid, time.monotonic(), float(self.get_parameter("window_timeout_s").value))
         if event == "start":
             self._fetch_truth(tid)
-        if "start" in w and "end" in w and not w.get("queued"):
-            w["queued"], w["deadline"] = True, time.monotonic() + float(self.get_parameter("window_timeout_s").value)
-            self._queue.append(w)
 
     def _fetch_truth(self, tid: int) -> None:
         if self._truth_client is None or not self._truth_client.service_is_ready():
             return
-        from rcl_interfaces.srv import GetParameters
-        names = ["k_gm", "k_fsj", "k_bkl", "effects", "seed"]
+        names = [*FAULT_NAMES, "effects", "seed"]
         fut = self._truth_client.call_async(GetParameters.Request(names=names))
 
         def done(f):
@@ -186,10 +172,9 @@ class MonitorNode(Node):
                 vals = f.result().values
             except Exception:   # the plant went away: no truth, no harm
                 return
-            from rclpy.parameter import parameter_value_to_python
             truth = {n: parameter_value_to_python(v) for n, v in zip(names, vals)}
             truth["effects"] = ",".join(e for e in (truth["effects"] or []) if e)
-            self._windows.setdefault(tid, {"id": tid})["truth"] = truth
+            self.windows.window(tid).truth = truth
             if self.log is not None:
                 self.log.add_metadata(f"truth/test_{tid}", {k: str(v) for k, v in truth.items()})
         fut.add_done_callback(done)
@@ -197,16 +182,7 @@ class MonitorNode(Node):
     # ---------------------------------------------------------------- windows
     def _poll(self) -> None:
         self._maybe_request_test()
-        while self._queue:
-            w = self._queue[0]
-            ready = all(self._last[c] >= w["end"] for c in self._buf)
-            progress = tuple(self._last.values())
-            if progress != w.get("progress"):   # samples still arriving (a busy plant): wait on
-                w["progress"] = progress
-                w["deadline"] = time.monotonic() + float(self.get_parameter("window_timeout_s").value)
-            if not ready and time.monotonic() < w["deadline"]:
-                break
-            self._queue.popleft()
+        for w in self.windows.ready(time.monotonic(), float(self.get_parameter("window_timeout_s").value)):
             self._start_diagnosis(w)
         while self._futures and self._futures[0][1].done():
             w, fut = self._futures.popleft()
@@ -226,11 +202,10 @@ class MonitorNode(Node):
             return
         if self.tests_requested >= int(self.get_parameter("request_tests").value):
             return
-        if len(self.results) < self.tests_requested or self._queue or self._futures:
+        if len(self.results) < self.tests_requested or self.busy:
             return
         if not all(s.get_publisher_count() >= 1 for s in self._subs) or not self._start_client.service_is_ready():
             return
-        from std_srvs.srv import Trigger
         self._request = self._start_client.call_async(Trigger.Request())
 
         def done(f):
@@ -246,88 +221,55 @@ class MonitorNode(Node):
                 self.get_logger().info(f"start_test refused: {why}; asking again", throttle_duration_sec=5.0)
         self._request.add_done_callback(done)
 
-    def _start_diagnosis(self, w: dict) -> None:
+    def _start_diagnosis(self, w) -> None:
         if self.log is not None:
             self.log.flush()
-        chans = {c: Samples.of(list(b)) for c, b in self._buf.items()}
         try:
-            r = assemble(chans, w["start"], w["end"], meta={"test_id": w["id"]})
-        except WindowError as e:
+            r = self.windows.assemble(w)
+        except ValueError as e:     # WindowError: the window names what is wrong with it
             return self._report(w, None, str(e))
-        w["response"] = r
         args = dict(method=self.get_parameter("method").value, fitness=self.get_parameter("fitness").value,
                     seed=int(self.get_parameter("seed").value))
-        self.get_logger().info(f"test {w['id']}: {len(r)} samples, diagnosing ({args['method']}) ...")
-        loop = bool(self.get_parameter("discrepancy").value)
-        n_eff = int(self.get_parameter("discrepancy_max_effects").value)
-        self._futures.append((w, self._worker.submit(_diagnose, r, loop, n_eff, **args)))
+        self.get_logger().info(f"test {w.id}: {len(r)} samples, diagnosing ({args['method']}) ...")
+        self._futures.append((w, self._worker.submit(
+            analyse_window, r, bool(self.get_parameter("discrepancy").value),
+            int(self.get_parameter("discrepancy_max_effects").value), **args)))
 
-    def _level(self, k) -> tuple[str, str]:
-        warn, err = (float(self.get_parameter(p).value) for p in ("warn_level", "error_level"))
-        worst = max(zip(k, NAMES))
-        if worst[0] >= err:
-            return "ERROR", f"{worst[1].upper()} = {worst[0]:.3f} >= {err:g}: near the fault limit"
-        if worst[0] >= warn:
-            return "WARN", f"{worst[1].upper()} = {worst[0]:.3f} >= {warn:g}: degraded"
-        return "OK", "healthy"
+    def _policy(self) -> HealthPolicy:
+        return HealthPolicy(float(self.get_parameter("warn_level").value), float(self.get_parameter("error_level").value))
 
-    def _report(self, w: dict, d, error: str | None, rep=None) -> None:
-        tid = w["id"]
-        entry = {"test_id": tid, "start_ns": w.get("start"), "truth": w.get("truth"), "response": w.get("response"),
-                 "diagnosis": d}
+    def _report(self, w, d, error: str | None, rep=None) -> None:
+        entry = {"test_id": w.id, "start_ns": w.start, "truth": w.truth, "response": w.response, "diagnosis": d}
         if d is None:
-            level, msg = "ERROR", f"test {tid} not diagnosed: {error}"
-            values = {"test_id": tid, "error": error}
-            self.get_logger().error(msg)
+            v = self._policy().refused(w.id, error)
+            self.get_logger().error(v.message)
         else:
-            k = d.faults.as_tuple()
-            level, msg = self._level(k)
-            values = {"test_id": tid}
+            v = self._policy().verdict(w.id, w.start, d, rep)
             if rep is not None:
-                from ..discrepancy.loop import UNEXPLAINED     # loaded with the report (lazy: node start-up
-                values["discrepancy"] = rep.verdict
                 entry["discrepancy"] = rep
-                lacks = None
-                if rep.selected:
-                    lacks = f"{rep.verdict} (position residual RMS {rep.before.rms['position'] * 1e6:.1f} -> " \
-                            f"{rep.after.rms['position'] * 1e6:.1f} um; coefficients re-identified with it: " + \
-                            ", ".join(f"{n.upper()}={rep.after.values[n]:.3f}" for n in NAMES) + ")"
-                elif rep.verdict == UNEXPLAINED:
-                    # the diagnosis was fitted by a model that misses something: say so, with the evidence
-                    lacks = f"{rep.verdict}; the coefficients may be biased ({rep.residual_before.evidence[0]})"
-                if lacks:
-                    msg = lacks + "; " + msg if level == "OK" else msg + "; " + lacks
-                    level = "WARN" if level == "OK" else level
-            for n, v in zip(NAMES, k):
-                values[n] = v
-                values[n + "_std"] = d.std[n]
-            values.update({"fitness": d.cost, "rms_position_m": d.rms["position"],
-                           "rms_pressure_pa": d.rms["pressure"], "method": d.method, "fitness_function": d.fitness,
-                           "evaluations": d.evaluations, "wall_time_s": d.wall_time_s,
-                           "window_start_s": w["start"] / NS, "warnings": "; ".join(d.warnings) or "none"})
-            self._publish(self.pub_health, C.HEALTH, cv.health_msg(k, [d.std[n] for n in NAMES]))
-            self.get_logger().info(f"test {tid}: " + ", ".join(f"{n.upper()}={v:.3f}" for n, v in zip(NAMES, k))
-                                   + f" ({d.wall_time_s:.2f} s) -> {level}")
+            k = d.faults.as_tuple()
+            self._publish(self.pub_health, C.HEALTH, cv.health_msg(k, [d.std[n] for n in FAULT_NAMES]))
+            self.get_logger().info(f"test {w.id}: " + ", ".join(f"{n.upper()}={x:.3f}" for n, x in zip(FAULT_NAMES, k))
+                                   + f" ({d.wall_time_s:.2f} s) -> {v.level}")
             if self.log is not None:
-                rec = d.as_dict()
-                self.log.add_metadata(f"diagnosis/test_{tid}", {
-                    k_: json.dumps(v, default=float) for k_, v in rec.items()})
+                self.log.add_metadata(f"diagnosis/test_{w.id}", {
+                    k_: json.dumps(x, default=float) for k_, x in d.as_dict().items()})
                 if rep is not None:
-                    self.log.add_metadata(f"discrepancy/test_{tid}", {
-                        k_: json.dumps(v, default=float) for k_, v in rep.as_dict().items()})
-        entry.update(level=level, message=msg)
+                    self.log.add_metadata(f"discrepancy/test_{w.id}", {
+                        k_: json.dumps(x, default=float) for k_, x in rep.as_dict().items()})
+        entry.update(level=v.level, message=v.message)
         self.results.append(entry)
-        self._status = (level, msg, values)
+        self._status = v
         self._publish_status()
         if self.log is not None:
             self.log.flush()
-        self._windows.pop(tid, None)
+        self.windows.forget(w.id)
 
     def _publish_status(self) -> None:
-        level, msg, values = self._status
+        v = self._status
         aid = self.get_parameter("actuator_id").value
         self._publish(self.pub_diag, C.DIAGNOSTICS, cv.diagnostic_array(
-            self.get_clock().now().nanoseconds, f"{self.get_name()}: {aid}", aid, level, msg, values))
+            self.get_clock().now().nanoseconds, f"{self.get_name()}: {aid}", aid, v.level, v.message, v.values))
 
     def _publish(self, pub, topic, msg) -> None:
         """Publish, and log what was published (every estimate is in the log)."""
@@ -338,7 +280,7 @@ class MonitorNode(Node):
     # ---------------------------------------------------------------- life cycle
     @property
     def busy(self) -> bool:
-        return bool(self._queue or self._futures)
+        return bool(self.windows.waiting or self._futures)
 
     @property
     def done(self) -> bool:

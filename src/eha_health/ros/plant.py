@@ -21,21 +21,18 @@ from rclpy.node import Node
 from msg_bridge import contract as C
 from msg_bridge import convert as cv
 
+from ..physics.faults import FAULT_NAMES, FAULT_UPPER, Faults
 from ..physics.layout import O_CUR, O_P12, O_POS, O_VEL
 from ..physics.model import Plant
-from ..physics.faults import Faults
 from ..physics.params import load
 from . import msg_class, qos, run_node
-
-FAULT_PARAMS = ("k_gm", "k_fsj", "k_bkl")
-K_MAX = 1.5
 
 
 class PlantNode(Node):
     def __init__(self, name: str = "eha_plant", **kw):
         super().__init__(name, **kw)
-        rng = FloatingPointRange(from_value=0.0, to_value=K_MAX, step=0.0)
-        for k in FAULT_PARAMS:
+        rng = FloatingPointRange(from_value=0.0, to_value=FAULT_UPPER, step=0.0)
+        for k in FAULT_NAMES:
             self.declare_parameter(k, 0.0, ParameterDescriptor(
                 description=f"fault coefficient {k.upper()} (0 healthy, 1 limit)", floating_point_range=[rng]))
         self.declare_parameter("effects", [""], ParameterDescriptor(description="optional effects to switch on"))
@@ -64,7 +61,7 @@ class PlantNode(Node):
 
     def _build(self, changes: dict) -> Plant:
         """A new model at rest from the current parameters updated by ``changes``; ValueError if invalid."""
-        faults = Faults(*(float(self._value(changes, k)) for k in FAULT_PARAMS))
+        faults = Faults(*(float(self._value(changes, k)) for k in FAULT_NAMES))
         path = self._value(changes, "params_file") or None
         params = load("reference", path=path)
         effects = [e for e in (self._value(changes, "effects") or []) if e]
@@ -74,7 +71,7 @@ class PlantNode(Node):
 
     def _on_set(self, params) -> SetParametersResult:
         changes = {p.name: p.value for p in params}
-        if not set(changes) & {*FAULT_PARAMS, "effects", "seed", "params_file"}:
+        if not set(changes) & {*FAULT_NAMES, "effects", "seed", "params_file"}:
             return SetParametersResult(successful=True)
         try:
             self.plant = self._build(changes)

@@ -11,19 +11,25 @@ import os
 import time
 from pathlib import Path
 
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
 
 from msg_bridge import contract as C
 from msg_bridge.convert import NS
 
+from ..identification.diagnose import DEFAULT_METHOD
+from ..io.bagrun import complete_windows, resolve_topics, truth_values
+from ..io.mcaplog import BagError, read_bag
+from ..monitoring.health import results_summary
 from . import msg_class, qos, run_node, teardown
-
+from .monitor import MonitorNode
 
 
 def recorded_inputs(path: str | Path) -> list[tuple[int, str, bytes]]:
     """(log time [ns], topic, raw CDR bytes) of every input topic, in log-time order."""
-    from ..io.bagrun import resolve_topics
-    from ..io.mcaplog import BagError, read_bag
     names = resolve_topics(read_bag(path, topics=[]).types, path)
     if C.COMMAND.name not in names:
         raise BagError(f"{path}: missing topic {C.COMMAND.name}: nothing to replay")
@@ -84,24 +90,13 @@ class ReplayNode(Node):
             self.pubs[topic].publish(data)
         self.sent = end
 
-
 def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_path: str | Path = "",
-           domain_id: int | None = None, method: str = "hybrid", timeout_s: float = 600.0) -> dict:
+           domain_id: int | None = None, method: str = DEFAULT_METHOD, timeout_s: float = 600.0) -> dict:
     """Republish ``bag`` into the graph; with ``with_monitor`` also diagnose it here.
 
     Returns the monitor's verdicts (with the bag's own truth metadata where it has
     some) and a printable summary.
     """
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.parameter import Parameter
-    from rclpy.signals import SignalHandlerOptions
-
-    from ..io.bagrun import complete_windows, resolve_topics, truth_values
-    from ..io.mcaplog import read_bag
-    from .launch import results_summary
-    from .monitor import MonitorNode
-    from msg_bridge import contract as C
     if domain_id is not None:
         os.environ["ROS_DOMAIN_ID"] = str(domain_id)
     win_topic = resolve_topics(read_bag(bag, topics=[]).types, bag).get(C.TEST_WINDOW.name)

@@ -26,9 +26,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy import stats
 
-UNITS = {"position": "m", "velocity": "m/s", "pressure": "Pa", "current": "A"}
-#: (factor, unit) to show each channel's residual in readable units (reports and plots).
-DISPLAY_UNITS = {"position": (1e6, "um"), "velocity": (1e3, "mm/s"), "pressure": (1e-3, "kPa"), "current": (1e6, "uA")}
+from .channels import UNITS
 
 
 def noise_level(y: np.ndarray) -> float:

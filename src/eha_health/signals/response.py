@@ -16,9 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-CSV_COLUMNS = ("t", "command", "position", "velocity", "pressure", "current", "spool")
-UNITS = {"t": "s", "command": "m", "position": "m", "velocity": "m/s", "pressure": "Pa",
-         "current": "A", "spool": "m", "jack_position": "m"}
+from .channels import MEASURED
+
+#: Columns of the CSV format, in order.
+CSV_COLUMNS = ("t", "command") + MEASURED + ("spool",)
 
 
 @dataclass

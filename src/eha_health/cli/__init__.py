@@ -1,0 +1,34 @@
+"""``eha-health``: the command-line entry point.
+
+Commands by group: :mod:`.model` (simulate, calibrate, signatures), :mod:`.analysis`
+(diagnose, discrepancy, import), :mod:`.graph` (demo, record, launch, replay),
+:mod:`.bench`. Bad input exits with code 2 and one line that says what is wrong.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+
+from . import analysis, bench, graph, model
+from .common import UsageError
+
+GROUPS = (model, bench, analysis, graph)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="eha-health", description="Health monitor for electrohydraulic servo actuators")
+    sub = ap.add_subparsers(dest="command", required=True)
+    for g in GROUPS:
+        g.register(sub)
+    return ap
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    args.raw = list(argv) if argv is not None else sys.argv[1:]
+    try:
+        return args.func(args)
+    except (UsageError, ValueError, FileNotFoundError) as e:
+        print(f"eha-health {args.command}: error: {e}", file=sys.stderr)
+        return 2
+

@@ -1,0 +1,48 @@
+"""Decision settings of the discrepancy loop, and where they come from (``data/discrepancy.yaml``)."""
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import yaml
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Decision thresholds of the loop (``data/discrepancy.yaml`` says how they were set)."""
+    fit_fraction: float = 0.7          # share of the samples fitted; the rest is held out
+    held_out_ratio: float = 0.5        # selected only if the held-out residual power above noise and
+                                       # floor, with / without the effect, is <= this
+    fit_ratio: float = 0.8             # ... and RSS_fit(aug)/RSS_fit(base) <= this
+    grid: int = 48                     # grid points of a candidate's knob before the local fit
+    starts: int = 3                    # local fits per candidate, from the best distinct grid points
+    max_nfev: int = 30                 # iterations of each local fit
+    floor: dict = field(default_factory=dict)   # per-channel residual floor of the model [SI]
+    effect_floor: dict = field(default_factory=dict)  # {candidate: per-channel floor} once it is added
+    rest_noise: bool = False           # noise also measured where the command rests (a rig's coloured
+                                       # interference; residuals.rest_noise_level)
+
+    def floor_with(self, effects) -> dict[str, float]:
+        """Per-channel floor [SI] of the model holding ``effects``: its largest known model-form error."""
+        out = dict(self.floor)
+        for e in effects:
+            for c, v in self.effect_floor.get(e, {}).items():
+                out[c] = max(out.get(c, 0.0), v)
+        return out
+
+
+@functools.lru_cache(maxsize=None)
+def _packaged_settings() -> dict:
+    return yaml.safe_load(resources.files("eha_health").joinpath("data/discrepancy.yaml").read_text()) or {}
+
+
+def fdi_settings(path: str | Path | None = None) -> Settings:
+    """Settings for FDI tests of the shipped monitor: thresholds and the model's residual floor."""
+    data = yaml.safe_load(Path(path).read_text()) if path else _packaged_settings()
+    fl = {k: float(v) for k, v in (data.get("floor") or {}).items()}
+    ef = {e: {k: float(v) for k, v in (chans or {}).items()} for e, chans in (data.get("effect_floor") or {}).items()}
+    th = data.get("thresholds") or {}
+    return Settings(**{k: float(v) for k, v in th.items() if k in ("held_out_ratio", "fit_ratio")}, floor=fl,
+                    effect_floor=ef)

@@ -1,0 +1,87 @@
+"""What was measured: a :class:`Record` to fit, and the checks every record passes.
+
+A record is the command, the channels a rig measured (any of
+:data:`~eha_health.signals.channels.MEASURED`) and, optionally, a measured external load
+force [N]. :meth:`Record.from_response` is the one place a record is checked (length,
+time axis, finite values); :func:`check_fdi` adds what an FDI test needs (it starts at
+t = 0 and covers the sequence).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..physics.sequence import FDISequence
+from ..signals.channels import MEASURED
+from ..signals.response import Response
+
+#: Channels a record may hold: the measured ones, and the spool of a simulated response.
+RECORDABLE = MEASURED + ("spool",)
+MIN_SAMPLES = 100
+
+
+@dataclass
+class Record:
+    """Measured data to fit: SI channels on a uniform time base [s], optional load force [N]."""
+    t: np.ndarray
+    command: np.ndarray
+    channels: dict[str, np.ndarray]
+    load: np.ndarray | None = None
+    meta: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_response(cls, r: Response, channels: tuple[str, ...] | None = None) -> "Record":
+        """Take the measured channels of ``r`` (those given, or every all-finite one); ``ValueError``
+        names the first problem."""
+        t = np.asarray(r.t, float)
+        if len(t) < MIN_SAMPLES:
+            raise ValueError(f"window too short: {len(t)} samples (need >= {MIN_SAMPLES})")
+        dt = np.diff(t)
+        if (dt <= 0).any():
+            raise ValueError("time axis is not strictly increasing")
+        rate = 1.0 / float(np.median(dt))
+        if np.max(np.abs(dt - np.median(dt))) > 0.01 * np.median(dt):
+            raise ValueError(f"samples are not uniformly spaced (median rate {rate:.1f} Hz): gaps or jitter")
+        if not np.isfinite(r.command).all():
+            raise ValueError("channel command has NaN or inf samples")
+        names = channels or tuple(c for c in MEASURED if np.isfinite(getattr(r, c)).all())
+        chans = {}
+        for c in names:
+            if c not in RECORDABLE:
+                raise ValueError(f"unknown channel {c!r}; known: {', '.join(RECORDABLE)}")
+            v = np.asarray(getattr(r, c), float)
+            if not np.isfinite(v).all():
+                raise ValueError(f"channel {c} has NaN or inf samples")
+            chans[c] = v
+        if not chans:
+            raise ValueError("no measured channel: need at least one of " + ", ".join(MEASURED))
+        load = getattr(r, "load", None)
+        if load is not None and not np.isfinite(load).all():
+            raise ValueError("channel load has NaN or inf samples")
+        return cls(t, np.asarray(r.command, float), chans, load, dict(r.meta))
+
+    @property
+    def sample_rate(self) -> float:
+        """[Hz]"""
+        return 1.0 / float(np.median(np.diff(self.t)))
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+def check_fdi(record: Record, sequence: FDISequence) -> None:
+    """Raise ``ValueError`` unless ``record`` can be a run of ``sequence``: it starts at t = 0 and
+    lasts the whole sequence."""
+    t, rate = record.t, record.sample_rate
+    if abs(t[0]) > 0.5 / rate:
+        raise ValueError(f"record starts at t={t[0]:g} s: the test window must start at t=0")
+    if t[-1] + 1.0 / rate < sequence.duration - 1e-9:
+        raise ValueError(f"record covers {t[-1] + 1.0 / rate:.3f} s but the FDI sequence lasts {sequence.duration:g} s")
+
+
+def fdi_record(response: Response, sequence: FDISequence) -> Record:
+    """The record of an FDI test: every measured channel required, checked against ``sequence``."""
+    rec = Record.from_response(response, MEASURED)
+    check_fdi(rec, sequence)
+    return rec

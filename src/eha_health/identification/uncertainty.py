@@ -1,0 +1,153 @@
+"""Uncertainty of a fitted estimate: the one Gauss-Newton covariance, and what it cannot see.
+
+* :func:`covariance` -- ``s^2 (J'J)^-1`` with ``s^2 = |r|^2 / (m - k)`` (m residuals, k free
+  knobs), times an inflation for correlated residuals (:func:`autocorr_inflation`, the
+  effective sample size of a coloured residual).
+* :func:`model_error` -- the monitor model's measured model-form error
+  (``data/model_error.yaml``: the RMS identification error on clean reference runs, which no
+  fit residual can reveal), growing with the estimated damage.
+* :func:`noise_error` -- what the sensor noise adds beyond the Gauss-Newton term through the
+  loop's stick-slip and backlash events, scaled by the position noise measured in the data.
+* :func:`twin_warnings` -- "twin cases": correlations above 0.95, or a distinct fault
+  combination in a final GA population that fits almost as well.
+"""
+from __future__ import annotations
+
+import functools
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..physics.faults import FAULT_NAMES
+
+#: The error bars' Jacobian steps this many optimiser steps (0.005 for a coefficient): the
+#: slope over the error bars' own scale, not over the finer stick-slip roughness the
+#: optimiser's step must resolve.
+COVARIANCE_STEP_SCALE = 2.5
+
+
+def autocorr_inflation(res: np.ndarray, n_channels: int) -> float:
+    """Variance inflation 1 + 2 sum(rho_k) of the residual, averaged over channels (Bartlett)."""
+    r = res.reshape(-1, n_channels)
+    total, weight = 0.0, 0.0
+    for c in range(n_channels):
+        x = r[:, c] - r[:, c].mean()
+        v = float(x @ x)
+        if v <= 0:
+            continue
+        n = len(x)
+        f = np.fft.rfft(x, 2 * n)
+        ac = np.fft.irfft(f * np.conj(f))[:n] / v
+        s = 0.0
+        for k in range(1, min(n // 4, 400)):
+            if ac[k] < 0.05:
+                break
+            s += ac[k] * (1 - k / n)
+        total += v * (1 + 2 * s)
+        weight += v
+    return total / weight if weight > 0 else 1.0
+
+
+def covariance(J: np.ndarray, r: np.ndarray, inflation: float = 1.0) -> np.ndarray:
+    """Gauss-Newton covariance ``|r|^2 / (m - k) (J'J)^-1 inflation`` of the k fitted knobs."""
+    dof = max(len(r) - J.shape[1], 1)
+    try:
+        return np.linalg.pinv(J.T @ J) * float(r @ r) / dof * inflation
+    except np.linalg.LinAlgError:
+        return np.full((J.shape[1], J.shape[1]), np.inf)
+
+
+def correlation(cov: np.ndarray) -> np.ndarray:
+    sd = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    corr = np.nan_to_num(corr)
+    np.fill_diagonal(corr, 1.0)
+    return corr
+
+
+@functools.lru_cache(maxsize=None)
+def _error_file(path: str | None) -> dict:
+    where = path or "data/model_error.yaml"
+    text = Path(path).read_text() if path else resources.files("eha_health").joinpath(
+        "data/model_error.yaml").read_text()
+    data = yaml.safe_load(text) or {}
+
+    def triple(key: str, required: bool) -> tuple[float, float, float]:
+        sd = data.get(key)
+        if sd is None and not required:
+            return (0.0, 0.0, 0.0)
+        try:
+            vals = tuple(float(sd[n]) for n in FAULT_NAMES)
+        except (KeyError, TypeError, ValueError):
+            raise ValueError(f"model error file {where}: needs {key} with {', '.join(FAULT_NAMES)}") from None
+        if not all(np.isfinite(v) and v >= 0 for v in vals):
+            raise ValueError(f"model error file {where}: {key} values must be finite and >= 0, got {vals}")
+        return vals
+
+    out = {"model": triple("model_error_sd", True), "noise": triple("noise_error_sd", False)}
+    var = data.get("model_error_variance")
+    if var is not None:
+        try:
+            c = np.array([[float(v) for v in var[n]] for n in FAULT_NAMES])
+        except (KeyError, TypeError, ValueError):
+            c = None
+        if c is None or c.shape != (3, 4) or not (np.isfinite(c).all() and (c >= 0).all()):
+            raise ValueError(f"model error file {where}: model_error_variance needs, for each of "
+                             f"{', '.join(FAULT_NAMES)}, four coefficients >= 0 (constant, K_GM, K_FSJ, K_BKL)")
+        out["variance"] = c
+    else:
+        out["variance"] = None
+    ref = data.get("noise_reference_m")
+    if any(out["noise"]) and not (isinstance(ref, (int, float)) and ref > 0):
+        raise ValueError(f"model error file {where}: noise_error_sd needs noise_reference_m > 0 [m]")
+    out["noise_reference_m"] = float(ref) if ref else 0.0
+    return out
+
+
+def model_error(path: str | Path | None = None, estimate=None) -> np.ndarray:
+    """Model-form error of the monitor model, 1 sd per coefficient (data/model_error.yaml).
+
+    Measured on clean reference runs (no noise, so all of it is model mismatch); the
+    file records the command that made it. Without ``estimate``: the RMS error over those
+    runs. With the estimated (K_GM, K_FSJ, K_BKL) and a ``model_error_variance`` block:
+    the error grows with the damage, var_k = c_k0 + c_k1 K_GM + c_k2 K_FSJ + c_k3 K_BKL
+    (non-negative least squares of the squared errors on the same runs).
+    """
+    f = _error_file(str(path) if path else None)
+    if estimate is None or f["variance"] is None:
+        return np.array(f["model"])
+    k = np.clip(np.asarray(estimate, float), 0.0, None)
+    return np.sqrt(f["variance"] @ np.concatenate([[1.0], k]))
+
+
+def noise_error(position_noise_m: float, path: str | Path | None = None) -> np.ndarray:
+    """Error the sensor noise adds beyond the Gauss-Newton term, 1 sd per coefficient.
+
+    Noise inside the loop moves the stick-slip and backlash events, which a local
+    linearisation cannot see. Measured as the excess RMS error over noisy reference runs
+    (``noise_error_sd`` at position noise ``noise_reference_m``) and scaled linearly with
+    the position noise measured in the data [m].
+    """
+    f = _error_file(str(path) if path else None)
+    if f["noise_reference_m"] <= 0:
+        return np.zeros(3)
+    return np.array(f["noise"]) * (max(float(position_noise_m), 0.0) / f["noise_reference_m"])
+
+
+def twin_warnings(corr: np.ndarray, x: np.ndarray, pop=None, pop_cost=None, cost=None) -> list[str]:
+    out = []
+    for i in range(3):
+        for j in range(i + 1, 3):
+            if abs(corr[i, j]) > 0.95:
+                out.append(f"twin cases: {FAULT_NAMES[i]} and {FAULT_NAMES[j]} are correlated (rho={corr[i, j]:+.2f}); "
+                           f"other combinations of the two explain the data almost as well")
+    if pop is not None and cost is not None and cost > 0:
+        for xp, cp in zip(pop, pop_cost):
+            if np.max(np.abs(xp - x)) > 0.1 and cp < 1.05 * cost:
+                out.append("twin cases: the GA population holds gm={:.3f} fsj={:.3f} bkl={:.3f} with fitness within "
+                           "5 % of the estimate".format(*xp))
+                break
+    return out
