@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
+from typing import Callable
 
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
@@ -42,19 +43,33 @@ def recorded_inputs(path: str | Path) -> list[tuple[int, str, bytes]]:
 
 
 class ReplayNode(Node):
-    def __init__(self, path: str | Path | None = None, name: str = "eha_replay", **kw):
+    """Publishes a bag's input topics in log-time order.
+
+    ``delivered`` (optional): a count of the replayed messages a subscriber in this process has
+    taken; the node then keeps at most ``max_in_flight`` messages ahead of it. Without it the
+    pace is ``max_msgs_per_s``, with bursts bounded to ``max_burst_s`` of that rate: a reader that
+    falls behind must not be flooded (measured: bursts of thousands of samples overflowed the DDS
+    transport under load, and the dropped samples came back only seconds later).
+    """
+
+    def __init__(self, path: str | Path | None = None, name: str = "eha_replay",
+                 delivered: Callable[[], int] | None = None, **kw):
         super().__init__(name, **kw)
         self.declare_parameter("bag", str(path or ""))
         self.declare_parameter("rate", 1.0)
         self.declare_parameter("max_msgs_per_s", 5000.0)
+        self.declare_parameter("max_burst_s", 0.05)
+        self.declare_parameter("max_in_flight", 1000)
         self.declare_parameter("wait_for_subscribers_s", 10.0)
+        self.delivered = delivered
         bag = self.get_parameter("bag").value
         if not bag:
             raise ValueError("replay: parameter 'bag' (the MCAP file) is required")
         self.rows = recorded_inputs(bag)
         self.pubs = {t.name: self.create_publisher(msg_class(t), t.name, qos(t)) for t in C.INPUTS}
         self.sent = 0
-        self._t0_wall = None
+        self._budget = 0.0           # messages the pace allows now
+        self._last_wall = None
         self._created = time.monotonic()
         self.timer = self.create_timer(0.002, self._tick)
 
@@ -72,12 +87,11 @@ class ReplayNode(Node):
         if self.done:
             return
         now = time.monotonic()
-        if self._t0_wall is None:
+        if self._last_wall is None:
             if not self._ready():
                 return
-            self._t0_wall = now
+            self._t0_wall = self._last_wall = now
         rate = float(self.get_parameter("rate").value)
-        cap = int((now - self._t0_wall) * float(self.get_parameter("max_msgs_per_s").value)) + 1 - self.sent
         n = len(self.rows)
         if rate > 0:
             horizon = self.rows[0][0] + (now - self._t0_wall) * rate * NS
@@ -85,10 +99,17 @@ class ReplayNode(Node):
             while end < n and self.rows[end][0] <= horizon:
                 end += 1
         else:
-            end = min(n, self.sent + max(cap, 0))
+            pace = float(self.get_parameter("max_msgs_per_s").value)
+            self._budget = min(self._budget + (now - self._last_wall) * pace,
+                               max(pace * float(self.get_parameter("max_burst_s").value), 1.0))
+            end = min(n, self.sent + int(self._budget))
+            if self.delivered is not None:
+                end = min(end, self.delivered() + int(self.get_parameter("max_in_flight").value))
+            self._budget -= max(end - self.sent, 0)
+        self._last_wall = now
         for _, topic, data in self.rows[self.sent:end]:
             self.pubs[topic].publish(data)
-        self.sent = end
+        self.sent = max(end, self.sent)
 
 def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_path: str | Path = "",
            domain_id: int | None = None, method: str = DEFAULT_METHOD, timeout_s: float = 600.0) -> dict:
@@ -107,13 +128,15 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
     nodes = []
     ex = SingleThreadedExecutor(context=ctx)
     try:
-        rep = ReplayNode(bag, context=ctx, parameter_overrides=[Parameter("rate", value=float(rate))])
-        nodes.append(rep)
         mon = None
         if with_monitor:
             mon = MonitorNode(context=ctx, parameter_overrides=[Parameter("log_path", value=str(log_path)),
                                                                  Parameter("method", value=method)])
             nodes.append(mon)
+        # with the monitor here, pace by what it has taken (flow control), not by a fixed rate
+        delivered = (lambda: sum(mon.received.values())) if mon is not None else None
+        rep = ReplayNode(bag, context=ctx, delivered=delivered, parameter_overrides=[Parameter("rate", value=float(rate))])
+        nodes.insert(0, rep)
         for n in nodes:
             ex.add_node(n)
         end = time.monotonic() + timeout_s
