@@ -3,6 +3,7 @@
 #   make test   - set up .venv and run the test suite
 #   make bench  - set up .venv and run the speed and graph benchmarks
 #   make bags   - regenerate the committed recordings in bags/
+#   make golden-check - re-run the golden outputs (tests/golden/) and compare (tools/golden.py)
 #   make venv   - (alias: setup) only set up .venv
 #   make clean  - remove .venv and build/test leftovers
 
@@ -15,7 +16,7 @@ PYTEST_ARGS ?=
 export ROS_LOG_DIR ?= $(CURDIR)/.ros/log
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: demo test bench bags venv setup clean
+.PHONY: demo test bench bags golden-check venv setup clean
 
 demo: $(STAMP)
 	$(VENV)/bin/eha-health demo
@@ -29,6 +30,9 @@ bench: $(STAMP)
 
 bags: $(STAMP)
 	EHA=$(VENV)/bin/eha-health bash bags/make_bags.sh
+
+golden-check: $(STAMP)
+	$(VENV)/bin/python tools/golden.py check
 
 venv setup: $(STAMP)
 
