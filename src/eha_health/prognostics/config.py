@@ -69,13 +69,16 @@ class PrognosisSettings:
 @dataclass(frozen=True)
 class ModelSettings:
     names: tuple = _f("-", "degradation models fitted (linear, exponential, power, wiener)")
-    aic_delta_max: float = _f("-", "AICc difference beyond which a model gets no weight")
+    criterion: str = _f("-", "model weights: aicc (Akaike weights) or evidence (Bayesian evidence on the grid)")
+    aic_delta_max: float = _f("-", "criterion difference beyond which a model gets no weight")
     exponential_rate: tuple = _f("1/span", "grid of the exponential model's rate b")
     power_exponent: tuple = _f("-", "grid of the power model's exponent b")
-    wiener_exponent: tuple = _f("-", "grid of the Wiener model's time-scale exponent b")
+    wiener_exponential_rate: tuple = _f("1/span", "grid of the Wiener model's exponential time-scale rate b")
+    wiener_exponent: tuple = _f("-", "grid of the Wiener model's power time-scale exponent b")
     scatter: tuple = _f("-", "grid of the path models' extra iid scatter eta (K)")
     wiener_scatter: tuple = _f("-", "grid of the Wiener model's extra iid scatter eta (K)")
     diffusion: tuple = _f("-", "grid of the Wiener diffusion sigma (K sd over one data span)")
+    rate_diffusion: tuple = _f("1/span", "grid of the wear-rate random walk (sd of the rate change over one span, K/span)")
 
 
 @dataclass(frozen=True)

@@ -54,97 +54,145 @@ _X, _P, _LL = slice(0, 3), slice(3, 9), 9
 
 
 # ----------------------------------------------------------------------------- shapes
-def shape_g(model: str, t: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """g(t~; b) of a model (broadcasting t and b)."""
+LINEAR, EXPONENTIAL, POWER = 0, 1, 2     # shape kinds of g
+
+
+def shape_g(kind, t, b) -> np.ndarray:
+    """g(t~; b) of a shape kind (0 linear t~, 1 exponential expm1(b t~)/expm1(b), 2 power t~^b)."""
     t = np.maximum(t, 0.0)
-    if model == "linear":
-        return t + 0.0 * b
-    if model == "exponential":
-        with np.errstate(over="ignore"):
-            return np.expm1(b * t) / np.expm1(b)
-    return t ** b
+    kind, b = np.asarray(kind), np.asarray(b, float)
+    bb = np.where(kind == EXPONENTIAL, b, 1.0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        e = np.expm1(bb * t) / np.expm1(bb)
+        pw = t ** np.where(kind == POWER, b, 1.0)
+    return np.where(kind == EXPONENTIAL, e, np.where(kind == POWER, pw, t + 0.0 * b))
 
 
-def shape_g_inv(model: str, g: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """t~ with g(t~; b) = g (g >= 0)."""
-    g = np.maximum(g, 0.0)
-    if model == "linear":
-        return g + 0.0 * b
-    if model == "exponential":
-        return np.log1p(g * np.expm1(b)) / b
-    return g ** (1.0 / b)
+def shape_g_inv(kind, g, b) -> np.ndarray:
+    """t~ with g(t~; b) = g (g >= 0); each kind computed on its own elements only."""
+    kind, b = np.broadcast_arrays(np.asarray(kind), np.asarray(b, float))
+    out = np.array(np.maximum(np.broadcast_to(g, kind.shape), 0.0), float)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        m = kind == EXPONENTIAL
+        if m.any():
+            out[m] = np.log1p(out[m] * np.expm1(b[m])) / b[m]
+        m = kind == POWER
+        if m.any():
+            out[m] = out[m] ** (1.0 / b[m])
+    return out
 
 
 @dataclass(frozen=True)
 class Grid:
-    """Grid cells of one model: shape exponent/rate b, extra scatter eta [K], diffusion sigma [K]."""
+    """Grid cells of one model: shape kind and its rate/exponent b, scatter eta [K], diffusion sigma [K]."""
     model: str
+    kind: np.ndarray
     b: np.ndarray
     eta: np.ndarray
     sigma: np.ndarray
+    rate_sd: np.ndarray    # sd of the wear-rate random walk over one span [K/span]
     n_params: int        # l0, a and every grid dimension with more than one value
+    log_prior: np.ndarray  # log prior weight of each cell (each shape kind gets equal mass)
 
     def __len__(self) -> int:
         return len(self.b)
 
 
+def _cells(kind: int, bs, etas, sigmas, rates=(0.0,)):
+    B, E, S, R = np.meshgrid(*(np.asarray(v, float) for v in (bs, etas, sigmas, rates)), indexing="ij")
+    return np.full(B.size, kind), B.ravel(), E.ravel(), S.ravel(), R.ravel()
+
+
 def model_grids(ms: ModelSettings) -> dict[str, Grid]:
-    """The grid of every model named in the settings."""
+    """The grid of every model named in the settings.
+
+    linear / exponential / power: deterministic mean path (sigma = 0) plus iid scatter eta.
+    wiener: the Wiener process in the time scale g of any of the three shapes (kind and b
+    on the grid), sigma > 0, scatter ``wiener_scatter``.
+    """
+    shapes = {"linear": (LINEAR, [1.0]), "exponential": (EXPONENTIAL, ms.exponential_rate),
+              "power": (POWER, ms.power_exponent)}
     out = {}
     for m in ms.names:
         if m == "wiener":
-            B, E, S = np.meshgrid(ms.wiener_exponent, ms.wiener_scatter, ms.diffusion, indexing="ij")
-            dims = [ms.wiener_exponent, ms.wiener_scatter, ms.diffusion]
+            rs = ms.rate_diffusion
+            parts = [_cells(LINEAR, [1.0], ms.wiener_scatter, ms.diffusion, rs),
+                     _cells(EXPONENTIAL, ms.wiener_exponential_rate, ms.wiener_scatter, ms.diffusion, rs),
+                     _cells(POWER, ms.wiener_exponent, ms.wiener_scatter, ms.diffusion, rs)]
+            kind, b, e, s, r = (np.concatenate(x) for x in zip(*parts))
+            # l0, a, time scale (kind, b), eta, sigma, rate diffusion
+            k = 2 + 1 + (len(ms.wiener_scatter) > 1) + 1 + (len(rs) > 1)
         else:
-            bs = {"linear": [1.0], "exponential": ms.exponential_rate, "power": ms.power_exponent}[m]
-            B, E = np.meshgrid(bs, ms.scatter, indexing="ij")
-            S = np.zeros_like(B)
-            dims = [bs, ms.scatter]
-        k = 2 + sum(len(d) > 1 for d in dims)
-        out[m] = Grid(m, B.ravel().astype(float), E.ravel().astype(float), S.ravel().astype(float), k)
+            kd, bs = shapes[m]
+            kind, b, e, s, r = _cells(kd, bs, ms.scatter, [0.0])
+            k = 2 + (len(bs) > 1) + (len(ms.scatter) > 1)
+        # prior: equal mass per shape kind, uniform over the cells of a kind (log-uniform grids)
+        counts = np.bincount(kind, minlength=3)
+        out[m] = Grid(m, kind, b, e, s, r, k, -np.log(counts[kind] * len(np.unique(kind))))
     return out
 
 
 # ----------------------------------------------------------------------------- Kalman filter
+NX = 4                                   # state (l0, a, u, v)
+_PI = {}                                 # (i, j) -> row of P_ij in the state array
+for _i in range(NX):
+    for _j in range(_i, NX):
+        _PI[(_i, _j)] = _PI[(_j, _i)] = NX + len({v for v in _PI.values()})
+LL = NX + NX * (NX + 1) // 2             # row of the log-likelihood
+NROW = LL + 1
+
+
 def kf_init(y0, r0, shape) -> np.ndarray:
-    """State after the first point: l0 ~ N(y0, r0) exactly (flat prior), a ~ N(0, KAPPA_A), u = 0."""
-    st = np.zeros((10,) + tuple(shape))
+    """State after the first point: l0 ~ N(y0, r0) exactly (flat prior), a ~ N(0, KAPPA_A), u = v = 0."""
+    st = np.zeros((NROW,) + tuple(shape))
     st[0] = y0
-    st[3] = r0
-    st[6] = KAPPA_A
-    st[9] = 0.5 * math.log(2 * math.pi * KAPPA_A)
+    st[_PI[0, 0]] = r0
+    st[_PI[1, 1]] = KAPPA_A
+    st[LL] = 0.5 * math.log(2 * math.pi * KAPPA_A)
     return st
 
 
-def kf_step(st: np.ndarray, g_prev, g, y, r, sigma2, active=None) -> None:
-    """One predict + update of the (l0, a, u) filter, in place, vectorised over cells.
+def kf_step(st: np.ndarray, g_prev, g, y, r, sigma2, q, active=None) -> None:
+    """One predict + update of the (l0, a, u, v) filter, in place, vectorised over cells.
 
-    Predict: u += w, Var w = sigma2 (g - g_prev).  Update with y = l0 + a g + u + e,
-    Var e = r.  ``active`` (bool) masks cells whose series has no point at this step.
+    Predict over dg = g - g_prev: u += v dg + w (Var w = sigma2 dg), v += w' (Var w' = q dg).
+    Update with y = l0 + a g + u + e, Var e = r. ``active`` (0/1) masks cells without a
+    point: pass them dg = 0 and a huge r, so that only the likelihood needs the mask.
     """
-    x0, x1, x2 = st[0], st[1], st[2]
-    p00, p01, p02, p11, p12, p22 = st[3], st[4], st[5], st[6], st[7], st[8]
-    p22p = p22 + sigma2 * np.maximum(g - g_prev, 0.0)
-    ph0 = p00 + p01 * g + p02
-    ph1 = p01 + p11 * g + p12
-    ph2 = p02 + p12 * g + p22p
-    F = ph0 + ph1 * g + ph2 + r
-    v = y - (x0 + x1 * g + x2)
-    ll = -0.5 * (np.log(2 * math.pi * F) + v * v / F)
-    kv = v / F
-    new = np.stack([x0 + ph0 * kv, x1 + ph1 * kv, x2 + ph2 * kv,
-                    p00 - ph0 * ph0 / F, p01 - ph0 * ph1 / F, p02 - ph0 * ph2 / F,
-                    p11 - ph1 * ph1 / F, p12 - ph1 * ph2 / F, p22p - ph2 * ph2 / F, st[9] + ll])
-    if active is None:
-        st[:] = new
-    else:
-        st[:] = np.where(active, new, st)
+    dg = np.maximum(g - g_prev, 0.0)
+    P = {k: st[v] for k, v in _PI.items()}
+    # predict: F = I + dg e_u e_v', Q = diag(0, 0, sigma2 dg, q dg)
+    st[2] += dg * st[3]
+    p22 = P[2, 2] + 2 * dg * P[2, 3] + dg * dg * P[3, 3] + sigma2 * dg
+    p20 = P[2, 0] + dg * P[3, 0]
+    p21 = P[2, 1] + dg * P[3, 1]
+    p23 = P[2, 3] + dg * P[3, 3]
+    st[_PI[2, 2]], st[_PI[0, 2]], st[_PI[1, 2]], st[_PI[2, 3]] = p22, p20, p21, p23
+    st[_PI[3, 3]] += q * dg
+    # update with h = (1, g, 1, 0)
+    ph = [st[_PI[i, 0]] + g * st[_PI[i, 1]] + st[_PI[i, 2]] for i in range(NX)]
+    F = ph[0] + g * ph[1] + ph[2] + r
+    inv = 1.0 / F
+    v = y - (st[0] + st[1] * g + st[2])
+    kv = v * inv
+    phf = [p * inv for p in ph]
+    for i in range(NX):
+        st[i] += ph[i] * kv
+        for j in range(i, NX):
+            st[_PI[i, j]] -= ph[i] * phf[j]
+    ll = np.log(2 * math.pi * F) + v * kv
+    st[LL] -= 0.5 * (ll if active is None else ll * active)
+
+
+def state_cov(st: np.ndarray) -> np.ndarray:
+    """Covariance [..., NX, NX] of the state rows ``st`` [NROW, ...]."""
+    return np.stack([np.stack([st[_PI[i, j]] for j in range(NX)], -1) for i in range(NX)], -2)
 
 
 def log_ml(st: np.ndarray) -> np.ndarray:
     """Profile (maximum) log-likelihood over (l0, a) from the integrated one (Laplace, exact)."""
-    det = st[3] * st[6] - st[4] ** 2
-    return st[9] - math.log(2 * math.pi) - 0.5 * np.log(np.maximum(det, 1e-300))
+    det = st[_PI[0, 0]] * st[_PI[1, 1]] - st[_PI[0, 1]] ** 2
+    return st[LL] - math.log(2 * math.pi) - 0.5 * np.log(np.maximum(det, 1e-300))
 
 
 # ----------------------------------------------------------------------------- fitting
@@ -164,13 +212,19 @@ class ModelFit:
     n_params: int
     aicc: np.ndarray       # [S] (inf where the model has too few points)
     max_log_ml: np.ndarray  # [S]
+    log_evidence: np.ndarray  # [S] log of the likelihood integrated over (l0, a) and the grid prior
     cell: np.ndarray       # [S, K] grid index of the kept cells
     weight: np.ndarray     # [S, K] posterior weight (sums to 1)
+    kind: np.ndarray       # [S, K] shape kind of the time scale g
     b: np.ndarray          # [S, K]
     sigma: np.ndarray      # [S, K]
     eta: np.ndarray        # [S, K]
-    mean: np.ndarray       # [S, K, 3] posterior mean of (l0, a, u_now)
-    cov: np.ndarray        # [S, K, 3, 3]
+    rate_sd: np.ndarray    # [S, K]
+    mean: np.ndarray       # [S, K, 4] posterior mean of (l0, a, u_now, v_now)
+    cov: np.ndarray        # [S, K, 4, 4]
+    g_now: np.ndarray      # [S, K] g at the last point
+    mean2: np.ndarray      # [S, K, 2] path: (l0, a); wiener: (X_now, rate a + v_now)
+    cov2: np.ndarray       # [S, K, 2, 2]
 
 
 def _batch(series: list[Series]):
@@ -188,50 +242,80 @@ def _batch(series: list[Series]):
     return t, y, r, mask
 
 
-def fit_model(series: list[Series], grid: Grid, chunk_cells: int = 400_000) -> ModelFit:
-    """Run the filter of every grid cell over every series; keep the top cells per series."""
-    t, y, r, mask = _batch(series)
-    S, N = y.shape
-    C = len(grid)
-    n_pts = mask.sum(1)
-    K = min(N_KEEP, C)
-    out = {k: [] for k in ("cell", "lw", "mean", "cov", "lml")}
-    step = max(1, chunk_cells // C)
-    for a in range(0, S, step):
-        sl = slice(a, min(S, a + step))
-        tt, yy, rr, mm = t[sl, None, :], y[sl], r[sl], mask[sl]
-        g = shape_g(grid.model, tt, grid.b[None, :, None])            # [s, C, N]
-        eta2, sig2 = grid.eta[None, :] ** 2, grid.sigma[None, :] ** 2
-        st = kf_init(yy[:, :1], rr[:, :1] + eta2, (len(yy), C))
-        for k in range(1, N):
-            kf_step(st, g[:, :, k - 1], g[:, :, k], yy[:, k:k + 1], rr[:, k:k + 1] + eta2, sig2,
-                    mm[:, k:k + 1])
-        lint = st[9]
-        lml = log_ml(st)
-        order = np.argsort(-lint, axis=1)[:, :K]
-        top = np.take_along_axis(lint, order, 1)
-        lw = top - top[:, :1]
-        rows = np.arange(len(yy))[:, None]
-        sel = st[:, rows, order]                                       # [10, s, K]
-        mean = np.moveaxis(sel[0:3], 0, -1)
-        p = sel[3:9]
-        cov = np.stack([np.stack([p[0], p[1], p[2]], -1), np.stack([p[1], p[3], p[4]], -1),
-                        np.stack([p[2], p[4], p[5]], -1)], -2)
-        out["cell"].append(order)
-        out["lw"].append(lw)
-        out["mean"].append(mean)
-        out["cov"].append(cov)
-        out["lml"].append(lml.max(1))
-    cell = np.concatenate(out["cell"])
-    w = np.exp(np.concatenate(out["lw"]))
+def grid_g(grid: Grid, t: np.ndarray) -> np.ndarray:
+    """g of every cell at normalised times t [s, N] -> [s, C, N] (distinct shapes computed once)."""
+    ug, inv = np.unique(np.stack([grid.kind, grid.b]), axis=1, return_inverse=True)
+    return shape_g(ug[0][None, :, None], t[:, None, :], ug[1][None, :, None])[:, inv.ravel(), :]
+
+
+def run_filters(grid: Grid, g: np.ndarray, y: np.ndarray, r: np.ndarray, mask: np.ndarray,
+                st: np.ndarray | None = None, start: int = 1) -> np.ndarray:
+    """Filter every cell over points ``start..N-1`` (state ``st`` after point start-1, else fresh)."""
+    eta2, sig2, q = grid.eta[None, :] ** 2, grid.sigma[None, :] ** 2, grid.rate_sd[None, :] ** 2
+    if st is None:
+        st = kf_init(y[:, :1], r[:, :1] + eta2, (len(y), len(grid)))
+    for k in range(start, y.shape[1]):
+        act = mask[:, k:k + 1]
+        if act.all():
+            kf_step(st, g[:, :, k - 1], g[:, :, k], y[:, k:k + 1], r[:, k:k + 1] + eta2, sig2, q)
+        else:   # padded rows: no time passes (g constant) and the point carries no information
+            kf_step(st, g[:, :, k - 1], g[:, :, k], np.where(act, y[:, k:k + 1], 0.0),
+                    np.where(act, r[:, k:k + 1] + eta2, 1e300), sig2, q, act)
+    return st
+
+
+def summarise(grid: Grid, st: np.ndarray, g_now: np.ndarray, n_pts: np.ndarray) -> ModelFit:
+    """Posterior over the cells from the filter states [NROW, S, C]: top cells, criteria, RUL inputs."""
+    K = min(N_KEEP, len(grid))
+    lint = st[LL] + grid.log_prior[None, :]
+    lml = log_ml(st).max(1)
+    order = np.argsort(-lint, axis=1)[:, :K]
+    top = np.take_along_axis(lint, order, 1)
+    w = np.exp(top - top[:, :1])
     w /= w.sum(1, keepdims=True)
-    lml = np.concatenate(out["lml"])
+    rows = np.arange(st.shape[1])[:, None]
+    sel = st[:, rows, order]                                       # [NROW, S, K]
+    mean = np.moveaxis(sel[0:NX], 0, -1)
+    cov = state_cov(sel)
+    gnow = np.take_along_axis(g_now, order, 1)
+    # the two quantities the RUL needs: path models (l0, a); Wiener (X_now, current rate a + v)
+    T = np.zeros(gnow.shape + (2, NX))
+    if grid.model == "wiener":
+        T[..., 0, 0], T[..., 0, 1], T[..., 0, 2] = 1.0, gnow, 1.0
+        T[..., 1, 1], T[..., 1, 3] = 1.0, 1.0
+    else:
+        T[..., 0, 0], T[..., 1, 1] = 1.0, 1.0
+    mx = lint.max(1, keepdims=True)
+    lev = (mx + np.log(np.exp(lint - mx).sum(1, keepdims=True)))[:, 0]
     k = grid.n_params
     with np.errstate(divide="ignore", invalid="ignore"):
         corr = np.where(n_pts - k - 1 > 0, 2.0 * k * (k + 1) / np.maximum(n_pts - k - 1, 1), 0.0)
     aicc = np.where(n_pts >= k + 1, -2 * lml + 2 * k + corr, np.inf)
-    return ModelFit(grid.model, k, aicc, lml, cell, w, grid.b[cell], grid.sigma[cell], grid.eta[cell],
-                    np.concatenate(out["mean"]), np.concatenate(out["cov"]))
+    lev = np.where(n_pts >= 3, lev, -np.inf)   # proper on the grid from 3 points
+    return ModelFit(grid.model, k, aicc, lml, lev, order, w, grid.kind[order], grid.b[order], grid.sigma[order],
+                    grid.eta[order], grid.rate_sd[order], mean, cov, gnow,
+                    np.einsum("skij,skj->ski", T, mean), np.einsum("skij,skjl,skml->skim", T, cov, T))
+
+
+def concat_fits(parts: list[ModelFit]) -> ModelFit:
+    """One ModelFit from fits of consecutive series chunks."""
+    first = parts[0]
+    vals = {f: (np.concatenate([getattr(p, f) for p in parts]) if isinstance(getattr(first, f), np.ndarray)
+                else getattr(first, f)) for f in first.__dataclass_fields__}
+    return ModelFit(**vals)
+
+
+def fit_model(series: list[Series], grid: Grid, chunk_cells: int = 400_000) -> ModelFit:
+    """Run the filter of every grid cell over every series; keep the top cells per series."""
+    t, y, r, mask = _batch(series)
+    step = max(1, chunk_cells // len(grid))
+    parts = []
+    for a in range(0, len(y), step):
+        sl = slice(a, min(len(y), a + step))
+        g = grid_g(grid, t[sl])                                             # [s, C, N]
+        st = run_filters(grid, g, y[sl], r[sl], mask[sl])
+        parts.append(summarise(grid, st, g[:, :, -1], mask[sl].sum(1)))
+    return concat_fits(parts)
 
 
 def akaike_weights(aicc: np.ndarray, delta_max: float) -> np.ndarray:
@@ -248,8 +332,16 @@ def fit_models(series: list[Series], ms: ModelSettings) -> tuple[list[ModelFit],
     """Fit every model of the settings; returns the fits and the Akaike weights [S, n_models]."""
     grids = model_grids(ms)
     fits = [fit_model(series, grids[m]) for m in ms.names]
-    aicc = np.stack([f.aicc for f in fits], -1)
-    return fits, akaike_weights(aicc, ms.aic_delta_max)
+    return fits, model_weights(fits, ms)
+
+
+def model_weights(fits: list[ModelFit], ms: ModelSettings) -> np.ndarray:
+    """Weights [S, n_models] by the settings' criterion: AICc, or -2 log evidence (Bayesian)."""
+    if ms.criterion == "evidence":
+        crit = np.stack([-2 * f.log_evidence for f in fits], -1)
+    else:
+        crit = np.stack([f.aicc for f in fits], -1)
+    return akaike_weights(crit, ms.aic_delta_max)
 
 
 # ----------------------------------------------------------------------------- onset

@@ -51,14 +51,14 @@ class Draws:
     """Common random numbers of one fault: uniforms and normals of every sample."""
     u_model: np.ndarray
     u_cell: np.ndarray
-    z: np.ndarray        # [M, 3]
+    z: np.ndarray        # [M, 4]
     z_ig: np.ndarray
     u_ig: np.ndarray
 
     @classmethod
     def make(cls, seed: int, fault_index: int, m: int) -> "Draws":
         rng = np.random.default_rng([seed, fault_index])
-        return cls(rng.random(m), rng.random(m), rng.standard_normal((m, 3)), rng.standard_normal(m),
+        return cls(rng.random(m), rng.random(m), rng.standard_normal((m, 4)), rng.standard_normal(m),
                    rng.random(m))
 
 
@@ -102,11 +102,20 @@ def _pick(cum: np.ndarray, u: np.ndarray) -> np.ndarray:
     return np.minimum(idx.reshape(s, -1) - k * np.arange(s)[:, None], k - 1)
 
 
-def _sqrtm(cov: np.ndarray) -> np.ndarray:
-    """L with L L' = cov for positive semi-definite cov (eigen-decomposition; the path models'
-    u is exactly 0, so Cholesky would fail)."""
-    w, v = np.linalg.eigh(0.5 * (cov + np.swapaxes(cov, -1, -2)))
-    return v * np.sqrt(np.maximum(w, 0.0))[..., None, :]
+def _chol2(c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cholesky factor (l00, l10, l11) of 2x2 covariances [..., 2, 2] (semi-definite allowed)."""
+    l00 = np.sqrt(np.maximum(c[..., 0, 0], 0.0))
+    l10 = np.divide(c[..., 0, 1], l00, out=np.zeros_like(l00), where=l00 > 0)
+    l11 = np.sqrt(np.maximum(c[..., 1, 1] - l10 * l10, 0.0))
+    return l00, l10, l11
+
+
+def _chol2(c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cholesky factor (l00, l10, l11) of 2x2 covariances [..., 2, 2] (semi-definite allowed)."""
+    l00 = np.sqrt(np.maximum(c[..., 0, 0], 0.0))
+    l10 = np.divide(c[..., 0, 1], l00, out=np.zeros_like(l00), where=l00 > 0)
+    l11 = np.sqrt(np.maximum(c[..., 1, 1] - l10 * l10, 0.0))
+    return l00, l10, l11
 
 
 def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, thr: np.ndarray,
@@ -118,13 +127,14 @@ def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, 
     t_now = np.array([s.tau_h[-1] for s in series]) / span
     cum_models = np.cumsum(model_w, -1)
     cum_models[:, -1] = 1.0
+    z0, z1 = draws.z[None, :, 0], draws.z[None, :, 1]
     for a in range(0, S, CHUNK):
         sl = slice(a, min(S, a + CHUNK))
         n = sl.stop - sl.start
         rows = np.arange(n)[:, None]
         which = _pick(cum_models[sl], draws.u_model)
         rul = np.full((n, M), np.inf)
-        tn = t_now[sl, None]
+        tn = np.broadcast_to(t_now[sl, None], (n, M))
         th = thr[sl, None]
         for mi, f in enumerate(fits):
             use = which == mi
@@ -133,22 +143,28 @@ def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, 
             cum = np.cumsum(f.weight[sl], -1)
             cum[:, -1] = 1.0
             c = _pick(cum, draws.u_cell)
-            beta = f.mean[sl][rows, c] + np.einsum("smij,mj->smi", _sqrtm(f.cov[sl])[rows, c], draws.z)
-            b = f.b[sl][rows, c]
-            l0, slope, u = beta[..., 0], beta[..., 1], beta[..., 2]
-            gn = shape_g(f.model, tn, b)
+            l00, l10, l11 = (v[rows, c] for v in _chol2(f.cov2[sl]))
+            m2 = f.mean2[sl][rows, c]
+            p0 = m2[..., 0] + l00 * z0                      # path: l0; wiener: X_now
+            p1 = m2[..., 1] + l10 * z0 + l11 * z1           # path: a;  wiener: current rate
+            b, kind, gn = f.b[sl][rows, c], f.kind[sl][rows, c], f.g_now[sl][rows, c]
             with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
                 if f.model == "wiener":
-                    sig = f.sigma[sl][rows, c]
-                    d = th - (l0 + slope * gn + u)
-                    mean = d / slope
-                    dg = inverse_gaussian(mean, d * d / (sig * sig), draws.z_ig[None, :], draws.u_ig[None, :])
-                    t_star = shape_g_inv(f.model, gn + dg, b)
-                    r = np.where(d <= 0, 0.0, np.where(slope > 0, t_star - tn, np.inf))
+                    sig, rq = f.sigma[sl][rows, c], f.rate_sd[sl][rows, c]
+                    d = th - p0
+                    mean = d / p1
+                    # the rate's own random walk adds q dg^3 / 3 to the level variance at dg:
+                    # folded into an equivalent diffusion at the mean passage (moment match)
+                    s2 = sig * sig + rq * rq * mean * mean / 3.0
+                    dg = inverse_gaussian(mean, d * d / s2, draws.z_ig[None, :], draws.u_ig[None, :])
+                    ok = (d > 0) & (p1 > 0)
+                    t_star = shape_g_inv(kind, np.where(ok, gn + dg, 0.0), b)
+                    r = np.where(d <= 0, 0.0, np.where(p1 > 0, t_star - tn, np.inf))
                 else:
-                    level = l0 + slope * gn
-                    t_star = shape_g_inv(f.model, (th - l0) / slope, b)
-                    r = np.where(level >= th, 0.0, np.where(slope > 0, t_star - tn, np.inf))
+                    level = p0 + p1 * gn
+                    ok = (level < th) & (p1 > 0)
+                    t_star = shape_g_inv(kind, np.where(ok, (th - p0) / p1, 0.0), b)
+                    r = np.where(level >= th, 0.0, np.where(p1 > 0, t_star - tn, np.inf))
             r = np.where(np.isfinite(r), np.maximum(r, 0.0), np.inf)
             rul = np.where(use, r, rul)
         rul *= span[sl, None]
@@ -204,12 +220,16 @@ class FaultPrediction:
     fleet_prior: bool = False
     reason: str | None = None
     series: Series | None = None
+    fits: list | None = None
     fit_index: int | None = None
 
     def quantiles(self) -> np.ndarray | None:
+        """(p05, median, p95) of the RUL [h]; inf beyond the horizon."""
         if self.samples is None:
             return None
-        return weighted_quantiles(self.samples, self.weights, (0.05, 0.5, 0.95))
+        if getattr(self, "_q", None) is None:
+            self._q = weighted_quantiles(self.samples, self.weights, (0.05, 0.5, 0.95))
+        return self._q
 
     def p_fail(self, horizon_h: float) -> float | None:
         if self.samples is None:
@@ -321,6 +341,7 @@ def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_i
         p.samples = samples[j]
         p.model_weights = dict(zip(names, map(float, mw[j])))
         p.model = names[int(np.argmax(mw[j]))]
+        p.fits, p.fit_index = fits, j
 
 
 def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings) -> None:
@@ -330,7 +351,7 @@ def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings)
     w = prior_weights(p.samples[None, :], np.array([p.series.tau_h[-1]]), prior)[0]
     ess = w.sum() ** 2 / max(np.sum(w * w), 1e-300) if w.sum() > 0 else 0.0
     if ess >= 50:
-        p.weights, p.fleet_prior = w, True
+        p.weights, p.fleet_prior, p._q = w, True, None
     else:
         p.reason = f"fleet prior not applied: it conflicts with the data (effective samples {ess:.0f})"
 
@@ -404,3 +425,81 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
             detail[a] = {**preds[a], "overall": ov}
     obj = {"actuators": out}
     return (obj, detail) if details else obj
+
+
+# ----------------------------------------------------------------------------- plot
+def trend_band(p: FaultPrediction, tau_h: np.ndarray, z: float = 1.645) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean path and +-z sd band [K] of the most probable model's best cell at hours ``tau_h``
+    since onset (Wiener beyond the last test: X_now + rate dg, Var + sigma^2 dg + q dg^3 / 3)."""
+    f = p.fits[int(np.argmax([p.model_weights.get(ff.model, 0.0) for ff in p.fits]))]
+    j = p.fit_index
+    m, P = f.mean[j, 0], f.cov[j, 0]
+    kind, b = f.kind[j, 0], f.b[j, 0]
+    g = shape_g(kind, np.asarray(tau_h, float) / p.series.span_h, b)
+    if f.model == "wiener":
+        gn = f.g_now[j, 0]
+        dg = np.maximum(g - gn, 0.0)
+        H = np.stack([np.ones_like(g), g, np.ones_like(g), dg], -1)
+        mean = H @ m
+        var = np.einsum("ni,ij,nj->n", H, P, H) + f.sigma[j, 0] ** 2 * dg + f.rate_sd[j, 0] ** 2 * dg ** 3 / 3
+    else:
+        H = np.stack([np.ones_like(g), g], -1)
+        mean = H @ m[:2]
+        var = np.einsum("ni,ij,nj->n", H, P[:2, :2], H)
+    sd = np.sqrt(np.maximum(var, 0.0))
+    return mean, mean - z * sd, mean + z * sd
+
+
+def plot_prognosis(history, path, actuator: str | None = None, next_check_h: float | None = None,
+                   settings: Settings | None = None) -> dict:
+    """PNG of one actuator's prognosis (``prognose --plot FILE.png``); returns the prognose object.
+
+    Per fault: the tests with 1-sd error bars, the fitted trend and its 90 % band, the
+    threshold, and the RUL distribution (histogram of the Monte Carlo samples, on the
+    time axis from the last test). ``actuator`` defaults to the first of the history.
+    """
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from .store import as_history
+    s = settings or load_settings()
+    hist = as_history(history, s)
+    if actuator is None:
+        if not hist.actuators:
+            raise PrognosticsError("the history is empty: no tests to prognose")
+        actuator = sorted(hist.actuators)[0]
+    obj, detail = prognose(hist, actuator, next_check_h, settings=s, details=True)
+    h, d = hist.actuators[actuator], detail[actuator]
+    fig, axes = plt.subplots(3, 1, figsize=(9, 10), sharex=True)
+    for ax, (fi, f) in zip(axes, enumerate(FAULTS)):
+        p = d[f]
+        ax.errorbar(h.time_h, h.k[:, fi], yerr=h.std[:, fi], fmt="o", ms=3, color="k", label="diagnoses (1 sd)")
+        for t, ff, *_ in h.repairs:
+            if ff in (f, "all"):
+                ax.axvline(t, color="C2", ls=":", lw=1)
+        if p.threshold is not None:
+            ax.axhline(p.threshold, color="C3", lw=1, label=f"threshold {p.threshold:.3f}")
+        q = p.quantiles()
+        if p.series is not None and q is not None and p.fits is not None:
+            t0 = p.onset_h
+            end = p.series.tau_h[-1] + (q[2] if np.isfinite(q[2]) else 2 * p.series.span_h)
+            tau = np.linspace(0, end, 200)
+            mean, lo, hi = trend_band(p, tau)
+            ax.plot(t0 + tau, mean, color="C0", label=f"trend ({p.model})")
+            ax.fill_between(t0 + tau, lo, hi, color="C0", alpha=0.2, label="90 % band")
+            fin = p.samples[np.isfinite(p.samples)]
+            if len(fin):
+                ax2 = ax.twinx()
+                ax2.hist(h.time_h[-1] + fin, bins=40, weights=None if p.weights is None else
+                         p.weights[np.isfinite(p.samples)], color="C1", alpha=0.35)
+                ax2.set_yticks([])
+            ax.set_title(f"{actuator} {f}: RUL median {q[1]:.0f} h [{q[0]:.0f}, {q[2]:.0f}] (5-95 %)", fontsize=9)
+        else:
+            ax.set_title(f"{actuator} {f}: {p.reason}", fontsize=8)
+        ax.set_ylabel(f"K_{f.upper()}")
+        ax.legend(fontsize=7, loc="upper left")
+    axes[-1].set_xlabel("time [h]  (orange: RUL distribution from the last test)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return obj
