@@ -70,8 +70,8 @@ def shape_g(kind, t, b) -> np.ndarray:
 
 def shape_g_inv(kind, g, b) -> np.ndarray:
     """t~ with g(t~; b) = g (g >= 0); each kind computed on its own elements only."""
-    kind, b = np.broadcast_arrays(np.asarray(kind), np.asarray(b, float))
-    out = np.array(np.maximum(np.broadcast_to(g, kind.shape), 0.0), float)
+    kind, b, g = np.broadcast_arrays(np.asarray(kind), np.asarray(b, float), np.asarray(g, float))
+    out = np.array(np.maximum(g, 0.0), float)
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         m = kind == EXPONENTIAL
         if m.any():

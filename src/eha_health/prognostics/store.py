@@ -119,7 +119,7 @@ def sha256_json(obj) -> str:
 
 
 @dataclass
-class TestRecord:
+class HealthRecord:
     """One diagnosis to append (K and std in the order gm, fsj, bkl)."""
     actuator_id: str
     time_h: float
@@ -152,7 +152,7 @@ class TestRecord:
                 self.source_hash or self.content_hash(), self.software_version or _version())
 
 
-def _check_record(r: TestRecord, where: str) -> None:
+def _check_record(r: HealthRecord, where: str) -> None:
     if not isinstance(r.actuator_id, str) or not r.actuator_id.strip():
         raise PrognosticsError(f"{where}: empty actuator id")
     if not isinstance(r.time_h, (int, float)) or not math.isfinite(r.time_h) or r.time_h < 0:
@@ -198,8 +198,8 @@ class History:
     actuators: dict = field(default_factory=dict)   # id -> ActuatorHistory
 
 
-def _history_from_records(recs: list[TestRecord], repairs: list[tuple]) -> History:
-    by: dict[str, list[TestRecord]] = {}
+def _history_from_records(recs: list[HealthRecord], repairs: list[tuple]) -> History:
+    by: dict[str, list[HealthRecord]] = {}
     for r in recs:
         by.setdefault(r.actuator_id, []).append(r)
     h = History()
@@ -221,7 +221,7 @@ def _float(text: str, where: str, name: str) -> float:
     return v
 
 
-def read_history_csv(path: str | Path, settings: Settings | None = None) -> list[TestRecord]:
+def read_history_csv(path: str | Path, settings: Settings | None = None) -> list[HealthRecord]:
     """Rows of a HISTORY.csv: ``actuator_id, time_h, k_gm, k_fsj, k_bkl`` [+ ``std_gm, std_fsj,
     std_bkl, usage``]; a missing std is ``history.default_std``. Validated row by row."""
     s = settings or load_settings()
@@ -245,7 +245,7 @@ def read_history_csv(path: str | Path, settings: Settings | None = None) -> list
             std = tuple(_float(row[f"std_{n}"], where, f"std_{n}") if row.get(f"std_{n}") not in (None, "")
                         else s.history.default_std for n in FAULT_NAMES)
             usage = _float(row["usage"], where, "usage") if row.get("usage") not in (None, "") else None
-            r = TestRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k, std, usage=usage,
+            r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k, std, usage=usage,
                            method="import")
             _check_record(r, where)
             r.source_path = str(path)
@@ -256,7 +256,7 @@ def read_history_csv(path: str | Path, settings: Settings | None = None) -> list
     return [r for _, r in recs]
 
 
-def _check_order(items: list[tuple[str, TestRecord]], latest: dict | None = None) -> None:
+def _check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = None) -> None:
     """Times must increase strictly per actuator within a batch (and after ``latest``)."""
     last: dict[str, tuple[float, str]] = {}
     for where, r in items:
@@ -327,7 +327,7 @@ class HistoryStore:
     def _latest(self) -> dict[str, float]:
         return {a: t for a, t in self.conn.execute("SELECT actuator_id, MAX(time_h) FROM tests GROUP BY actuator_id")}
 
-    def add_tests(self, records: list[TestRecord], wheres: list[str] | None = None) -> int:
+    def add_tests(self, records: list[HealthRecord], wheres: list[str] | None = None) -> int:
         """Append validated records in one transaction; returns the rows added.
 
         A record whose ``source_hash`` is already stored for the same actuator adds nothing
@@ -386,7 +386,7 @@ class HistoryStore:
             h = hh.hexdigest()
         else:
             h = None
-        rec = TestRecord(actuator_id, float(time_h), k, std, usage=usage, usage_unit=usage_unit, sim_time_s=sim_time_s,
+        rec = HealthRecord(actuator_id, float(time_h), k, std, usage=usage, usage_unit=usage_unit, sim_time_s=sim_time_s,
                          method=diagnosis.method, cost=float(diagnosis.cost), fit_rms=dict(diagnosis.rms),
                          discrepancy=discrepancy, warnings=list(diagnosis.warnings),
                          source_path=str(source_path) if source_path is not None else None, source_hash=h)
@@ -462,7 +462,7 @@ class HistoryStore:
     def history(self) -> History:
         """All tests and maintenance as arrays for the prognostics."""
         q = "SELECT actuator_id, time_h, k_gm, k_fsj, k_bkl, std_gm, std_fsj, std_bkl, usage FROM tests"
-        recs = [TestRecord(a, t, (g, f, b), (sg, sf, sb), usage=u) for a, t, g, f, b, sg, sf, sb, u in
+        recs = [HealthRecord(a, t, (g, f, b), (sg, sf, sb), usage=u) for a, t, g, f, b, sg, sf, sb, u in
                 self.conn.execute(q)]
         reps = list(self.conn.execute("SELECT actuator_id, time_h, fault, action FROM maintenance"))
         return _history_from_records(recs, reps)
