@@ -198,6 +198,27 @@ def diagnose_fleet(units: list[Unit], method: str, cache_dir: str | Path,
     return {"diagnoses": total, "cached": cached, "wall_time_s": time.perf_counter() - t0}
 
 
+# ----------------------------------------------------------------------------- oracle
+def oracle_rul(u: Unit, t_h: float, thr: dict[str, float], n_paths: int = 400, seed: int = 0) -> np.ndarray:
+    """RUL samples [h] of an oracle that knows each fault's true K at ``t_h``, its law, life and
+    volatility: gamma-process continuations from there (only the future randomness is unknown).
+    Its median is the best point prediction any method can make; it bounds alpha-lambda."""
+    rng = np.random.default_rng([seed, u.index, int(t_h)])
+    best = np.full(n_paths, np.inf)
+    for p in u.paths:
+        j = int(np.searchsorted(p.t_h, t_h))
+        k0 = np.interp(t_h, p.t_h, p.k)
+        mu = thr[p.fault] * _mean_shape(p.law, (p.t_h[j:] - p.onset_h) / p.life_h, p.shape, p.knee)
+        dmu = np.maximum(np.diff(mu), 0.0)
+        inc = np.where(dmu > 0, rng.gamma(np.maximum(dmu, 1e-300) / p.volatility, p.volatility,
+                                          size=(n_paths, len(dmu))), 0.0)
+        k = k0 + np.cumsum(inc, 1)
+        hit = k >= thr[p.fault]
+        first = np.where(hit.any(1), p.t_h[j + 1:][np.argmax(hit, 1)] - t_h, np.inf)
+        best = np.minimum(best, first)
+    return best
+
+
 # ----------------------------------------------------------------------------- evaluation
 @dataclass
 class UnitScore:
@@ -265,6 +286,23 @@ def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float]) 
         scores.append(UnitScore(u.actuator_id, u.eol_h, a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5],
                                 a[:, 6], a[:, 7].astype(bool), a[:, 8].astype(bool)))
     return scores
+
+
+def oracle_alpha_lambda(units: list[Unit], scores: list[UnitScore], thr: dict[str, float],
+                        b: BenchSettings) -> dict:
+    """alpha-lambda of the oracle's median (:func:`oracle_rul`) at the same prediction points."""
+    from . import metrics as M
+    out = {}
+    for lam in b.lambdas:
+        res = []
+        for u, sc in zip(units, scores):
+            med = np.array([np.median(oracle_rul(u, t, thr)) for t in sc.t_h])
+            r = M.alpha_lambda(sc.t_h, med, sc.eol_h, b.alpha, lam)
+            if r is not None:
+                res.append(r)
+        out[str(lam)] = {"fraction": float(np.mean(res)) if res else float("nan"),
+                         "misses": int(len(res) - sum(res)), "units": len(res)}
+    return out
 
 
 def score_fleet(scores: list[UnitScore], b: BenchSettings) -> dict:
@@ -377,6 +415,7 @@ def bench_rul(settings: Settings | None = None, cache_dir: str | Path = "out/rul
     t1 = time.perf_counter()
     scores = _predict_unit_points(units, s, thr)
     result = score_fleet(scores, s.bench)
+    result["oracle"] = {"alpha_lambda": oracle_alpha_lambda(units, scores, thr, s.bench)}
     result["thresholds"] = thr
     result["diagnoses"] = diag
     result["prediction_wall_time_s"] = time.perf_counter() - t1
@@ -400,6 +439,11 @@ def format_result(r: dict) -> str:
         lines.append(f"| alpha-lambda (alpha {r['settings']['alpha']}) at lambda {lam}: units within | "
                      f"{a['fraction']:.0%} ({a['misses']} misses) | {c['fraction']:.0%} ({c['misses']} misses) | "
                      f"{(a['misses'] / c['misses']) if c['misses'] else float('nan'):.2f} (misses) |")
+    if "oracle" in r:
+        o = r["oracle"]["alpha_lambda"]
+        lines.append("| alpha-lambda of an oracle knowing each unit's law, life and volatility (lambda "
+                     + " / ".join(o) + ") | " + " / ".join(f"{v['fraction']:.0%}" for v in o.values())
+                     + " | - | - |")
     for key, label in (("ph_fraction_median", "prognostic horizon / life, median (first entry)"),
                        ("ph_stay_fraction_median", "prognostic horizon / life, median (stays in band)"),
                        ("ra_median", "relative accuracy, median over points"),
@@ -416,3 +460,72 @@ def format_result(r: dict) -> str:
     lines.append(f"| dominant fault right | {m['dominant_fault_right']:.1%} | - | - |")
     lines += ["", "targets: " + "; ".join(f"{k}: {'met' if v else 'NOT met'}" for k, v in r["targets"].items())]
     return "\n".join(lines)
+
+
+def synthetic_history_csv(path: str | Path, n_actuators: int = 1000, n_tests: int = 25, seed: int = 0) -> Path:
+    """A HISTORY.csv where every fault of every actuator degrades (linear, onset at 100 h, rate
+    lognormal, noise 0.003): the worst case for the ``prognose`` timing target."""
+    import csv
+    rng = np.random.default_rng(seed)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    t = np.arange(n_tests) * 40.0
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+        for a in range(n_actuators):
+            ks = [np.clip(6e-4 * math.exp(0.3 * rng.standard_normal()) * np.maximum(t - 100, 0)
+                          + rng.normal(0, 0.003, n_tests), 0, 1.5) for _ in FAULTS]
+            for i in range(n_tests):
+                w.writerow([f"A{a:04d}", t[i], *(round(float(k[i]), 6) for k in ks), 0.003, 0.003, 0.003])
+    return path
+
+
+def time_prognose(n_actuators: int = 1000, path: str | Path = "out/history_1000.csv") -> dict:
+    """Wall time of ``prognose`` (thresholds included, computed afresh) on a synthetic history."""
+    from .rul import prognose
+    from .thresholds import _thresholds
+    p = synthetic_history_csv(path, n_actuators)
+    _thresholds.cache_clear()
+    t0 = time.perf_counter()
+    obj = prognose(p)
+    return {"actuators": len(obj["actuators"]), "series": 3 * n_actuators, "wall_time_s": time.perf_counter() - t0,
+            "history": str(p)}
+
+
+def main(argv=None) -> int:
+    """``python -m eha_health.prognostics.harness`` (the future ``eha-health bench rul``)."""
+    import argparse
+    from .config import PrognosticsError
+    ap = argparse.ArgumentParser(prog="python -m eha_health.prognostics.harness",
+                                 description="Run-to-failure fleet bench of the prognostics (issue 16).")
+    ap.add_argument("--units", type=int, help="fleet size (default: bench.n_units of prognostics.yaml)")
+    ap.add_argument("--seed", type=int, help="fleet seed (default: bench.seed)")
+    ap.add_argument("--settings", help="a user YAML merged over data/prognostics.yaml")
+    ap.add_argument("--cache", default="out/rul_cache", help="diagnosis cache directory")
+    ap.add_argument("--plot", default="out/bench_rul.png", help="PNG to write ('' for none)")
+    ap.add_argument("--json", dest="json_out", help="write the result object to this file")
+    ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--time-prognose", type=int, metavar="N",
+                    help="only time prognose on a synthetic N-actuator history (every fault degrading)")
+    a = ap.parse_args(argv)
+    if a.time_prognose:
+        print(json.dumps(time_prognose(a.time_prognose)))
+        return 0
+    over = {"bench": {k: v for k, v in (("n_units", a.units), ("seed", a.seed)) if v is not None}}
+    try:
+        s = load_settings(a.settings, over)
+        r = bench_rul(s, a.cache, a.plot or None, None if a.quiet else (lambda m: print(m, flush=True)))
+    except PrognosticsError as e:
+        print(f"error: {e}")
+        return 2
+    if a.json_out:
+        Path(a.json_out).parent.mkdir(parents=True, exist_ok=True)
+        Path(a.json_out).write_text(json.dumps(r, indent=1, default=float))
+    if a.quiet:
+        print(format_result(r))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

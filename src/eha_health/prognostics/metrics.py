@@ -15,7 +15,8 @@ distribution), true RUL r*_i = EOL - t_i, t_P the first prediction time, EOL the
 * coverage: fraction of points whose interval [p05, p95] holds r*.
 * NASA score per point: exp(-d/13) - 1 if d < 0 else exp(d/10) - 1, with d = r - r* in
   percent of the unit's life (the PHM08 constants, which were in cycles of ~200-cycle lives;
-  percent keeps them scale-free). Late predictions cost more.
+  percent keeps them scale-free), d capped at +-100 % (a missing prediction counts as
+  +100 %). Late predictions cost more.
 """
 from __future__ import annotations
 
@@ -78,8 +79,8 @@ def coverage(lo: np.ndarray, hi: np.ndarray, r_true: np.ndarray) -> float:
 
 def nasa_score(r: np.ndarray, r_true: np.ndarray, life: float) -> np.ndarray:
     d = 100.0 * (np.asarray(r, float) - np.asarray(r_true, float)) / life
-    d = np.where(np.isfinite(d), d, 100.0)          # no crossing predicted: as late as a whole life
-    return np.where(d < 0, np.expm1(-d / 13.0), np.expm1(np.minimum(d, 700.0) / 10.0))
+    d = np.clip(np.where(np.isfinite(d), d, 100.0), -100.0, 100.0)   # capped at a whole life either way
+    return np.where(d < 0, np.expm1(-d / 13.0), np.expm1(d / 10.0))
 
 
 def naive_rul(time_h: np.ndarray, k: np.ndarray, threshold: float, window: int) -> float:

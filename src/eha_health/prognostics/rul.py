@@ -199,8 +199,8 @@ def fleet_prior(lives_h, min_members: int) -> FleetPrior | None:
 def prior_weights(samples_h: np.ndarray, tau_now_h: np.ndarray, prior: FleetPrior) -> np.ndarray:
     """Importance weights of RUL samples [S, M] under the prior on tau_now + RUL."""
     lp = prior.logpdf(tau_now_h[:, None] + samples_h)
-    lp = lp - np.max(np.where(np.isfinite(lp), lp, -np.inf), -1, keepdims=True)
-    return np.exp(lp)
+    top = np.max(lp, -1, keepdims=True)
+    return np.exp(lp - np.where(np.isfinite(top), top, 0.0))
 
 
 # ----------------------------------------------------------------------------- summaries
