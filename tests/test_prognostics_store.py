@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eha_health.prognostics.config import PrognosticsError
+from eha_health.prognostics.config import PrognosticsError, load_settings
 from eha_health.prognostics.store import SCHEMA_VERSION, HistoryStore, HealthRecord, read_history_csv
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
@@ -104,6 +104,17 @@ def test_repair_rules(tmp_path):
         assert st.list_maintenance("A1")[0]["fault"] == "all"
     assert h.since_repair("gm").tolist() == [False, True]      # at or after the gm repair at 100 h
     assert h.since_repair("fsj").tolist() == [False, True]     # after the 'all' replacement at 50 h
+
+
+def test_missing_std_is_the_series_scatter(tmp_path):
+    rng = np.random.default_rng(5)
+    t = np.arange(30) * 50.0
+    k = np.clip(0.0008 * t + rng.normal(0, 0.02, len(t)), 0, 1.5)
+    p = tmp_path / "h.csv"
+    p.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl\n" + "".join(f"A,{a},{b},0,0\n" for a, b in zip(t, k)))
+    recs = read_history_csv(p)
+    assert 0.7 * 0.02 < recs[0].std[0] < 1.3 * 0.02
+    assert recs[0].std[1] == load_settings().history.default_std      # a flat series: the floor
 
 
 def test_import_csv_twice_and_bad_csv(tmp_path):

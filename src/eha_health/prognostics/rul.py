@@ -290,7 +290,7 @@ def overall(preds: dict[str, FaultPrediction], n_tests: int) -> FaultPrediction:
     out.threshold = have[dom].threshold
     missing = [f for f in preds if f not in have]
     if missing:
-        out.reason = "without " + ", ".join(missing) + " (no RUL: " + "; ".join(
+        out.note = "without " + ", ".join(missing) + " (no RUL: " + "; ".join(
             f"{f}: {preds[f].reason}" for f in missing) + ")"
     return out
 
@@ -418,6 +418,8 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
         o["dominant_fault"] = getattr(ov, "dominant", None)
         if hasattr(ov, "p_first"):
             o["p_first"] = {f: round(v, 4) for f, v in ov.p_first.items()}
+        if getattr(ov, "note", None):
+            o["note"] = ov.note
         for key in ("n_points", "onset_h", "k_last", "std_last"):
             o.pop(key, None)
         if actuator is None or a == actuator:

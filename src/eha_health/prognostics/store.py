@@ -223,7 +223,8 @@ def _float(text: str, where: str, name: str) -> float:
 
 def read_history_csv(path: str | Path, settings: Settings | None = None) -> list[HealthRecord]:
     """Rows of a HISTORY.csv: ``actuator_id, time_h, k_gm, k_fsj, k_bkl`` [+ ``std_gm, std_fsj,
-    std_bkl, usage``]; a missing std is ``history.default_std``. Validated row by row."""
+    std_bkl, usage``]. Validated row by row. A missing std is the scatter of that actuator's
+    series about a smooth trend (:func:`noise_estimate`), at least ``history.default_std``."""
     s = settings or load_settings()
     path = Path(path)
     if not path.is_file():
@@ -243,17 +244,46 @@ def read_history_csv(path: str | Path, settings: Settings | None = None) -> list
             row = {k: (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
             k = tuple(_float(row[f"k_{n}"], where, f"k_{n}") for n in FAULT_NAMES)
             std = tuple(_float(row[f"std_{n}"], where, f"std_{n}") if row.get(f"std_{n}") not in (None, "")
-                        else s.history.default_std for n in FAULT_NAMES)
+                        else None for n in FAULT_NAMES)
             usage = _float(row["usage"], where, "usage") if row.get("usage") not in (None, "") else None
-            r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k, std, usage=usage,
-                           method="import")
+            r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k,
+                             tuple(0.0 if v is None else v for v in std), usage=usage, method="import")
             _check_record(r, where)
+            r.std = std
             r.source_path = str(path)
             recs.append((where, r))
     if not recs:
         raise PrognosticsError(f"{path}: the history is empty (no rows)")
     _check_order([(w, r) for w, r in recs])
-    return [r for _, r in recs]
+    out = [r for _, r in recs]
+    _fill_missing_std(out, s.history.default_std)
+    return out
+
+
+def noise_estimate(k: np.ndarray) -> float:
+    """1-sd of the scatter of a series about a smooth trend: 1.4826 MAD(second differences) / sqrt(6)
+    (a second difference of white noise has variance 6 s^2); NaN with fewer than 5 points."""
+    k = np.asarray(k, float)
+    if len(k) < 5:
+        return float("nan")
+    d2 = np.diff(k, 2)
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+
+
+def _fill_missing_std(recs: list[HealthRecord], floor: float) -> None:
+    """A HISTORY.csv row without a std: the scatter of that actuator's series (at least ``floor``)."""
+    by: dict[str, list[HealthRecord]] = {}
+    for r in recs:
+        by.setdefault(r.actuator_id, []).append(r)
+    for rs in by.values():
+        for i in range(3):
+            if all(r.std[i] is not None for r in rs):
+                continue
+            est = noise_estimate([r.k[i] for r in rs])
+            fill = max(floor, est) if math.isfinite(est) else floor
+            for r in rs:
+                if r.std[i] is None:
+                    r.std = tuple(fill if j == i else v for j, v in enumerate(r.std))
 
 
 def _check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = None) -> None:
