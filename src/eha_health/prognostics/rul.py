@@ -432,7 +432,7 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
 # ----------------------------------------------------------------------------- plot
 def trend_band(p: FaultPrediction, tau_h: np.ndarray, z: float = 1.645) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean path and +-z sd band [K] of the most probable model's best cell at hours ``tau_h``
-    since onset (Wiener beyond the last test: X_now + rate dg, Var + sigma^2 dg + q dg^3 / 3)."""
+    since onset (Wiener, from the last test on: X_now + rate dg, Var + sigma^2 dg + q dg^3 / 3)."""
     f = p.fits[int(np.argmax([p.model_weights.get(ff.model, 0.0) for ff in p.fits]))]
     j = p.fit_index
     m, P = f.mean[j, 0], f.cov[j, 0]
@@ -485,7 +485,8 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
         if p.series is not None and q is not None and p.fits is not None:
             t0 = p.onset_h
             end = p.series.tau_h[-1] + (q[2] if np.isfinite(q[2]) else 2 * p.series.span_h)
-            tau = np.linspace(0, end, 200)
+            wiener = p.model == "wiener"     # its past is the data; its trend starts at the last test
+            tau = np.linspace(p.series.tau_h[-1] if wiener else 0.0, end, 200)
             mean, lo, hi = trend_band(p, tau)
             ax.plot(t0 + tau, mean, color="C0", label=f"trend ({p.model})")
             ax.fill_between(t0 + tau, lo, hi, color="C0", alpha=0.2, label="90 % band")
