@@ -1,4 +1,32 @@
 """Prognostics: from a history of diagnoses to a remaining useful life with an interval.
 
-Nothing here imports ROS.
+Nothing here imports ROS. Modules (docs/prognostics.md has the method and the figures):
+
+* :mod:`.store`       -- SQLite health history (schema v1), HISTORY.csv import
+* :mod:`.thresholds`  -- failure thresholds from the reference model and data/prognostics.yaml
+* :mod:`.degradation` -- linear / exponential / power / Wiener models on one Kalman filter
+* :mod:`.online`      -- the same filter updated one test at a time
+* :mod:`.rul`         -- RUL distributions per fault and overall, ``prognose``, ``plot_prognosis``
+* :mod:`.metrics`     -- PHM metrics (alpha-lambda, prognostic horizon, RA, CRA, convergence, ...)
+* :mod:`.harness`     -- run-to-failure fleet bench (``python -m eha_health.prognostics.harness``)
+* :mod:`.config`      -- settings and :class:`PrognosticsError` (bad input: CLI exit code 2)
+
+Intended CLI wiring: ``history add|list|import|repair`` -> :class:`HistoryStore` methods,
+``prognose`` -> :func:`prognose` / :func:`plot_prognosis`, ``thresholds`` ->
+:func:`failure_thresholds`, ``bench rul`` -> :func:`bench_rul`.
 """
+from .config import PrognosticsError, Settings, load_settings
+from .rul import plot_prognosis, prognose
+from .store import HealthRecord, History, HistoryStore, default_history_path, read_history_csv
+from .thresholds import failure_thresholds, threshold_values
+
+
+def bench_rul(*args, **kwargs):
+    """Run the validation harness (see :func:`eha_health.prognostics.harness.bench_rul`)."""
+    from .harness import bench_rul as run
+    return run(*args, **kwargs)
+
+
+__all__ = ["HealthRecord", "History", "HistoryStore", "PrognosticsError", "Settings", "bench_rul",
+           "default_history_path", "failure_thresholds", "load_settings", "plot_prognosis", "prognose",
+           "read_history_csv", "threshold_values"]

@@ -1,0 +1,234 @@
+"""Prognostics settings: ``data/prognostics.yaml`` read into typed frozen dataclasses.
+
+One source of truth: every default lives in the YAML shipped with the package (read with
+``yaml.safe_load`` only); the dataclasses carry the unit and a one-line doc of each field in
+its metadata. :func:`load_settings` reads the shipped file, optionally merged with a user
+YAML of the same structure (partial allowed) and a nested ``overrides`` dict.
+"""
+from __future__ import annotations
+
+import copy
+import functools
+import math
+import typing
+from dataclasses import dataclass, field, fields, is_dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class PrognosticsError(ValueError):
+    """Bad input to the prognostics (history, settings, arguments): a one-line message naming it.
+
+    The CLI prints the message and exits with code 2.
+    """
+
+
+def _f(unit: str, doc: str):
+    return field(metadata={"unit": unit, "doc": doc})
+
+
+# ----------------------------------------------------------------------------- blocks
+@dataclass(frozen=True)
+class Requirement:
+    """A requirement on the reference EHA's FDI response: ``metric <= limit``."""
+    name: str = _f("-", "requirement name")
+    metric: str = _f("-", "metric of eha_health.prognostics.thresholds.METRICS")
+    limit: float = _f("metric's unit", "largest admissible value of the metric (SI)")
+
+
+@dataclass(frozen=True)
+class ThresholdSettings:
+    default: float = _f("-", "K where no requirement is set or none breaks")
+    search_max: float = _f("-", "upper end of the K search")
+    scan_points: int = _f("-", "K values scanned before the root is refined")
+    tolerance: float = _f("-", "bisection tolerance on K")
+
+
+@dataclass(frozen=True)
+class HistorySettings:
+    default_path: str = _f("path", "history database used when none is given")
+    default_std: float = _f("-", "1-sd of K for a HISTORY.csv row without std columns")
+
+
+@dataclass(frozen=True)
+class PrognosisSettings:
+    min_tests: int = _f("-", "tests since the last repair below which no RUL is given")
+    next_check_h: float = _f("h", "default interval to the next check")
+    warn_p_fail: float = _f("-", "p_fail_next at or above which the monitor reports WARN")
+    error_p_fail: float = _f("-", "p_fail_next at or above which the monitor reports ERROR")
+    onset_sigma: float = _f("-", "onset: rise over the first post-repair K in standard errors")
+    onset_delta: float = _f("-", "onset: smallest rise of K")
+    samples: int = _f("-", "Monte Carlo samples per RUL distribution")
+    horizon_factor: float = _f("-", "RUL horizon in data spans")
+    seed: int = _f("-", "seed of the Monte Carlo sampling")
+
+
+@dataclass(frozen=True)
+class ModelSettings:
+    names: tuple = _f("-", "degradation models fitted (linear, exponential, power, wiener)")
+    criterion: str = _f("-", "model weights: aicc (Akaike weights) or evidence (Bayesian evidence on the grid)")
+    aic_delta_max: float = _f("-", "criterion difference beyond which a model gets no weight")
+    exponential_rate: tuple = _f("1/span", "grid of the exponential model's rate b")
+    power_exponent: tuple = _f("-", "grid of the power model's exponent b")
+    wiener_exponential_rate: tuple = _f("1/span", "grid of the Wiener model's exponential time-scale rate b")
+    wiener_exponent: tuple = _f("-", "grid of the Wiener model's power time-scale exponent b")
+    scatter: tuple = _f("-", "grid of the path models' extra iid scatter eta (K)")
+    wiener_scatter: tuple = _f("-", "grid of the Wiener model's extra iid scatter eta (K)")
+    diffusion: tuple = _f("-", "grid of the Wiener diffusion sigma (K sd over one data span)")
+    rate_diffusion: tuple = _f("1/span", "grid of the wear-rate random walk (sd of the rate change over one span, K/span)")
+
+
+@dataclass(frozen=True)
+class FleetSettings:
+    min_points: int = _f("-", "points since onset for an actuator to inform the fleet prior")
+    min_members: int = _f("-", "fleet members needed for a prior")
+    use_below_points: int = _f("-", "actuators with fewer points since onset receive the prior")
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    n_units: int = _f("-", "actuators in the simulated fleet")
+    seed: int = _f("-", "seed of the fleet (laws, rates, onsets, noise)")
+    laws: tuple = _f("-", "degradation laws drawn in turn (linear, exponential, power, two_phase)")
+    life_median_h: float = _f("h", "median time from onset to the threshold (mean path)")
+    life_spread: float = _f("-", "sd of log life, unit to unit")
+    healthy_fraction: tuple = _f("-", "healthy period before onset, fraction of the life (min, max)")
+    volatility: tuple = _f("-", "gamma-process scale nu (K), Var K = nu E K (min, max, log-uniform)")
+    second_fault_probability: float = _f("-", "chance that a unit has a slower second fault")
+    second_fault_slowdown: tuple = _f("-", "second fault's life relative to the first (min, max)")
+    test_interval_h: float = _f("h", "nominal test interval")
+    test_jitter: float = _f("-", "test time jitter, fraction of the interval (uniform +-)")
+    first_prediction_test: int = _f("-", "first scored prediction (1-based test number)")
+    method: str = _f("-", "diagnose() method of every simulated test")
+    naive_window: int = _f("-", "points of the naive straight-line baseline")
+    alpha: float = _f("-", "accuracy modifier of alpha-lambda and prognostic horizon")
+    lambdas: tuple = _f("-", "lambda points of the alpha-lambda metric")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """All prognostics settings (data/prognostics.yaml)."""
+    requirements: tuple = _f("-", "requirements of the reference EHA (tuple of Requirement)")
+    thresholds: ThresholdSettings = _f("-", "threshold search")
+    history: HistorySettings = _f("-", "history store")
+    prognosis: PrognosisSettings = _f("-", "RUL prediction")
+    models: ModelSettings = _f("-", "degradation models")
+    fleet: FleetSettings = _f("-", "fleet prior")
+    bench: BenchSettings = _f("-", "validation harness")
+
+
+# ----------------------------------------------------------------------------- YAML I/O
+def _convert(tp, v, where: str):
+    if isinstance(tp, type) and is_dataclass(tp):
+        return _build(tp, v, where)
+    if tp is int:
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise PrognosticsError(f"{where}: expected an integer, got {v!r}")
+        return v
+    if tp is float:
+        if isinstance(v, str):  # YAML 1.1 reads 1.0e6 without a sign as text
+            try:
+                v = float(v)
+            except ValueError:
+                pass
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise PrognosticsError(f"{where}: expected a finite number, got {v!r}")
+        return float(v)
+    if tp is str:
+        if not isinstance(v, str):
+            raise PrognosticsError(f"{where}: expected text, got {v!r}")
+        return v
+    if tp is tuple:
+        if not isinstance(v, list):
+            raise PrognosticsError(f"{where}: expected a list, got {v!r}")
+        return tuple(v)
+    return v
+
+
+def _build(cls, data: Any, where: str):
+    if not isinstance(data, dict):
+        raise PrognosticsError(f"{where}: expected a mapping, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise PrognosticsError(f"{where}: unknown setting(s) {unknown}")
+    kwargs = {}
+    for f in fields(cls):
+        if f.name not in data:
+            raise PrognosticsError(f"{where}.{f.name}: missing")
+        kwargs[f.name] = _convert(hints[f.name], data[f.name], f"{where}.{f.name}")
+    return cls(**kwargs)
+
+
+def _merge(base: dict, over: dict) -> dict:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(base[k], v) if isinstance(v, dict) and isinstance(base.get(k), dict) else v
+    return out
+
+
+def _read(path) -> dict:
+    try:
+        data = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as e:
+        raise PrognosticsError(f"{path}: cannot read settings ({e.__class__.__name__}: {str(e).splitlines()[0]})") \
+            from None
+    return data or {}
+
+
+@functools.lru_cache(maxsize=None)
+def _packaged() -> dict:
+    return _read(resources.files("eha_health") / "data" / "prognostics.yaml")
+
+
+def load_settings(path: str | Path | None = None, overrides: dict | None = None) -> Settings:
+    """Read ``data/prognostics.yaml``, merged with ``path`` (a user YAML) and ``overrides``."""
+    data = copy.deepcopy(_packaged())
+    if path is not None:
+        data = _merge(data, _read(Path(path)))
+    if overrides:
+        data = _merge(data, overrides)
+    reqs = data.get("requirements")
+    if not isinstance(reqs, list):
+        raise PrognosticsError("requirements: expected a list of {name, metric, limit}")
+    data["requirements"] = [_build(Requirement, r, f"requirements[{i}]") for i, r in enumerate(reqs)]
+    s = _build(Settings, data, "prognostics")
+    _validate(s)
+    return s
+
+
+def _validate(s: Settings) -> None:
+    from .thresholds import METRICS   # the metric table lives beside the code that computes it
+    for r in s.requirements:
+        if r.metric not in METRICS:
+            raise PrognosticsError(f"requirement {r.name}: unknown metric {r.metric!r}; known: {', '.join(METRICS)}")
+        if not r.limit > 0:
+            raise PrognosticsError(f"requirement {r.name}: limit must be > 0 {METRICS[r.metric][0]}")
+    p = s.prognosis
+    if p.min_tests < 3:
+        raise PrognosticsError("prognosis.min_tests must be >= 3 (a trend needs three points)")
+    if not 0 < p.warn_p_fail <= p.error_p_fail <= 1:
+        raise PrognosticsError("prognosis: need 0 < warn_p_fail <= error_p_fail <= 1")
+    if p.next_check_h <= 0 or p.samples < 100:
+        raise PrognosticsError("prognosis: next_check_h must be > 0 h and samples >= 100")
+    known = {"linear", "exponential", "power", "wiener"}
+    if not s.models.names or set(s.models.names) - known:
+        raise PrognosticsError(f"models.names: choose from {sorted(known)}")
+    if not 0 < s.thresholds.default <= s.thresholds.search_max:
+        raise PrognosticsError("thresholds: need 0 < default <= search_max")
+
+
+def settings_table(obj: Any, prefix: str = "") -> list[tuple[str, Any, str, str]]:
+    """Rows ``(name, value, unit, doc)`` of every setting (for docs)."""
+    rows = []
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        if is_dataclass(v):
+            rows += settings_table(v, f"{prefix}{f.name}.")
+        elif f.name != "requirements":
+            rows.append((prefix + f.name, v, f.metadata.get("unit", ""), f.metadata.get("doc", "")))
+    return rows

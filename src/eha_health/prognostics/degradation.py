@@ -1,0 +1,367 @@
+"""Degradation models of one fault coefficient, fitted with each point weighted by its error.
+
+Data of one fault since its degradation onset (:func:`degradation_segment`): times tau_k
+[h] from the anchor test (tau_0 = 0), diagnosed K y_k with standard errors s_k. Time is
+normalised by the data span, t~ = tau / T_s (T_s = tau at the last point unless given),
+and every model is one linear-Gaussian state space with a shape g(t~), g(0) = 0, g(1) = 1:
+
+    y_k = l0 + a g_k + u_k + e_k,       e_k ~ N(0, s_k^2 + eta^2)
+    u_k = u_{k-1} + w_k,                w_k ~ N(0, sigma^2 (g_k - g_{k-1})),  u_0 = 0
+
+* ``linear``      g = t~                              sigma = 0   (params l0, a, eta)
+* ``exponential`` g = expm1(b t~) / expm1(b)          sigma = 0   (l0, a, b, eta)
+* ``power``       g = t~^b                            sigma = 0   (l0, a, b, eta)
+* ``wiener``      g = t~^b, Wiener process u in the   sigma > 0   (l0, a, b, sigma, eta)
+  time scale g (b = 1: the classic Wiener degradation model; first passage is inverse
+  Gaussian in g)
+
+l0 (level at onset) and a (rise of the mean path over the data span) have flat priors and
+are estimated exactly by a Kalman filter on the state (l0, a, u): the filter *is* the
+Bayesian update of the degradation parameters, one test at a time (:mod:`online`). The
+nonlinear parameters (b, eta, sigma) live on the grids of ``data/prognostics.yaml``; their
+posterior is the normalised integrated likelihood over the grid (log-uniform prior). Each
+point's diagnosis error s_k enters the observation noise, so precise tests weigh more and
+the filtered state carries their uncertainty into the prediction.
+
+Likelihoods (prediction-error decomposition, v_k innovations, F_k their variances, k >= 1
+after conditioning l0 on y_0 exactly):
+
+    log p_int = sum_k log N(v_k; 0, F_k) + 1/2 log(2 pi kappa_a)        (flat prior on a)
+    log L_ML  = log p_int - log(2 pi) - 1/2 log det P_beta             (Laplace, exact here)
+
+with P_beta the final posterior covariance of (l0, a). Models are compared by
+AICc = -2 max log L_ML + 2k + 2k(k+1)/(n-k-1) and averaged with Akaike weights
+w_m ~ exp(-Delta_m / 2), models with Delta_m > ``aic_delta_max`` dropped.
+
+The filter is written out for the 3-state case and vectorised over (series x grid cells)
+by hand: filterpy's KalmanFilter runs one filter per Python object, and a fleet needs
+~10^6 filters per prognosis; tests check this one against filterpy step by step.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import ModelSettings
+
+MODELS = ("linear", "exponential", "power", "wiener")
+KAPPA_A = 1.0e4          # prior variance of a [K^2]: diffuse against any rise K <= 1.5
+N_KEEP = 48              # grid cells kept per (series, model) for sampling
+# state rows: x0 x1 x2 (l0, a, u), p00 p01 p02 p11 p12 p22, log-likelihood
+_X, _P, _LL = slice(0, 3), slice(3, 9), 9
+
+
+# ----------------------------------------------------------------------------- shapes
+LINEAR, EXPONENTIAL, POWER = 0, 1, 2     # shape kinds of g
+
+
+def shape_g(kind, t, b) -> np.ndarray:
+    """g(t~; b) of a shape kind (0 linear t~, 1 exponential expm1(b t~)/expm1(b), 2 power t~^b)."""
+    t = np.maximum(t, 0.0)
+    kind, b = np.asarray(kind), np.asarray(b, float)
+    bb = np.where(kind == EXPONENTIAL, b, 1.0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        e = np.expm1(bb * t) / np.expm1(bb)
+        pw = t ** np.where(kind == POWER, b, 1.0)
+    return np.where(kind == EXPONENTIAL, e, np.where(kind == POWER, pw, t + 0.0 * b))
+
+
+def shape_g_inv(kind, g, b) -> np.ndarray:
+    """t~ with g(t~; b) = g (g >= 0); each kind computed on its own elements only."""
+    kind, b, g = np.broadcast_arrays(np.asarray(kind), np.asarray(b, float), np.asarray(g, float))
+    out = np.array(np.maximum(g, 0.0), float)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        m = kind == EXPONENTIAL
+        if m.any():
+            out[m] = np.log1p(out[m] * np.expm1(b[m])) / b[m]
+        m = kind == POWER
+        if m.any():
+            out[m] = out[m] ** (1.0 / b[m])
+    return out
+
+
+@dataclass(frozen=True)
+class Grid:
+    """Grid cells of one model: shape kind and its rate/exponent b, scatter eta [K], diffusion sigma [K]."""
+    model: str
+    kind: np.ndarray
+    b: np.ndarray
+    eta: np.ndarray
+    sigma: np.ndarray
+    rate_sd: np.ndarray    # sd of the wear-rate random walk over one span [K/span]
+    n_params: int        # l0, a and every grid dimension with more than one value
+    log_prior: np.ndarray  # log prior weight of each cell (each shape kind gets equal mass)
+
+    def __len__(self) -> int:
+        return len(self.b)
+
+
+def _cells(kind: int, bs, etas, sigmas, rates=(0.0,)):
+    B, E, S, R = np.meshgrid(*(np.asarray(v, float) for v in (bs, etas, sigmas, rates)), indexing="ij")
+    return np.full(B.size, kind), B.ravel(), E.ravel(), S.ravel(), R.ravel()
+
+
+def model_grids(ms: ModelSettings) -> dict[str, Grid]:
+    """The grid of every model named in the settings.
+
+    linear / exponential / power: deterministic mean path (sigma = 0) plus iid scatter eta.
+    wiener: the Wiener process in the time scale g of any of the three shapes (kind and b
+    on the grid), sigma > 0, scatter ``wiener_scatter``.
+    """
+    shapes = {"linear": (LINEAR, [1.0]), "exponential": (EXPONENTIAL, ms.exponential_rate),
+              "power": (POWER, ms.power_exponent)}
+    out = {}
+    for m in ms.names:
+        if m == "wiener":
+            rs = ms.rate_diffusion
+            parts = [_cells(LINEAR, [1.0], ms.wiener_scatter, ms.diffusion, rs),
+                     _cells(EXPONENTIAL, ms.wiener_exponential_rate, ms.wiener_scatter, ms.diffusion, rs),
+                     _cells(POWER, ms.wiener_exponent, ms.wiener_scatter, ms.diffusion, rs)]
+            kind, b, e, s, r = (np.concatenate(x) for x in zip(*parts))
+            # l0, a, time scale (kind, b), eta, sigma, rate diffusion
+            k = 2 + 1 + (len(ms.wiener_scatter) > 1) + 1 + (len(rs) > 1)
+        else:
+            kd, bs = shapes[m]
+            kind, b, e, s, r = _cells(kd, bs, ms.scatter, [0.0])
+            k = 2 + (len(bs) > 1) + (len(ms.scatter) > 1)
+        # prior: equal mass per shape kind, uniform over the cells of a kind (log-uniform grids)
+        counts = np.bincount(kind, minlength=3)
+        out[m] = Grid(m, kind, b, e, s, r, k, -np.log(counts[kind] * len(np.unique(kind))))
+    return out
+
+
+# ----------------------------------------------------------------------------- Kalman filter
+NX = 4                                   # state (l0, a, u, v)
+_PI = {}                                 # (i, j) -> row of P_ij in the state array
+for _i in range(NX):
+    for _j in range(_i, NX):
+        _PI[(_i, _j)] = _PI[(_j, _i)] = NX + len({v for v in _PI.values()})
+LL = NX + NX * (NX + 1) // 2             # row of the log-likelihood
+NROW = LL + 1
+
+
+def kf_init(y0, r0, shape) -> np.ndarray:
+    """State after the first point: l0 ~ N(y0, r0) exactly (flat prior), a ~ N(0, KAPPA_A), u = v = 0."""
+    st = np.zeros((NROW,) + tuple(shape))
+    st[0] = y0
+    st[_PI[0, 0]] = r0
+    st[_PI[1, 1]] = KAPPA_A
+    st[LL] = 0.5 * math.log(2 * math.pi * KAPPA_A)
+    return st
+
+
+def kf_step(st: np.ndarray, g_prev, g, y, r, sigma2, q, active=None) -> None:
+    """One predict + update of the (l0, a, u, v) filter, in place, vectorised over cells.
+
+    Predict over dg = g - g_prev: u += v dg + w (Var w = sigma2 dg), v += w' (Var w' = q dg).
+    Update with y = l0 + a g + u + e, Var e = r. ``active`` (0/1) masks cells without a
+    point: pass them dg = 0 and a huge r, so that only the likelihood needs the mask.
+    """
+    dg = np.maximum(g - g_prev, 0.0)
+    P = {k: st[v] for k, v in _PI.items()}
+    # predict: F = I + dg e_u e_v', Q = diag(0, 0, sigma2 dg, q dg)
+    st[2] += dg * st[3]
+    p22 = P[2, 2] + 2 * dg * P[2, 3] + dg * dg * P[3, 3] + sigma2 * dg
+    p20 = P[2, 0] + dg * P[3, 0]
+    p21 = P[2, 1] + dg * P[3, 1]
+    p23 = P[2, 3] + dg * P[3, 3]
+    st[_PI[2, 2]], st[_PI[0, 2]], st[_PI[1, 2]], st[_PI[2, 3]] = p22, p20, p21, p23
+    st[_PI[3, 3]] += q * dg
+    # update with h = (1, g, 1, 0)
+    ph = [st[_PI[i, 0]] + g * st[_PI[i, 1]] + st[_PI[i, 2]] for i in range(NX)]
+    F = ph[0] + g * ph[1] + ph[2] + r
+    inv = 1.0 / F
+    v = y - (st[0] + st[1] * g + st[2])
+    kv = v * inv
+    phf = [p * inv for p in ph]
+    for i in range(NX):
+        st[i] += ph[i] * kv
+        for j in range(i, NX):
+            st[_PI[i, j]] -= ph[i] * phf[j]
+    ll = np.log(2 * math.pi * F) + v * kv
+    st[LL] -= 0.5 * (ll if active is None else ll * active)
+
+
+def state_cov(st: np.ndarray) -> np.ndarray:
+    """Covariance [..., NX, NX] of the state rows ``st`` [NROW, ...]."""
+    return np.stack([np.stack([st[_PI[i, j]] for j in range(NX)], -1) for i in range(NX)], -2)
+
+
+def log_ml(st: np.ndarray) -> np.ndarray:
+    """Profile (maximum) log-likelihood over (l0, a) from the integrated one (Laplace, exact)."""
+    det = st[_PI[0, 0]] * st[_PI[1, 1]] - st[_PI[0, 1]] ** 2
+    return st[LL] - math.log(2 * math.pi) - 0.5 * np.log(np.maximum(det, 1e-300))
+
+
+# ----------------------------------------------------------------------------- fitting
+@dataclass
+class Series:
+    """Points of one fault since its onset anchor (padded batch rows use NaN)."""
+    tau_h: np.ndarray      # [n] hours since the anchor (tau_0 = 0)
+    y: np.ndarray          # [n] K
+    s: np.ndarray          # [n] 1-sd of K
+    span_h: float          # T_s: normalisation of time (default tau_h[-1])
+
+
+@dataclass
+class ModelFit:
+    """Posterior over the grid cells of one model for a batch of series (top cells kept)."""
+    model: str
+    n_params: int
+    aicc: np.ndarray       # [S] (inf where the model has too few points)
+    max_log_ml: np.ndarray  # [S]
+    log_evidence: np.ndarray  # [S] log of the likelihood integrated over (l0, a) and the grid prior
+    cell: np.ndarray       # [S, K] grid index of the kept cells
+    weight: np.ndarray     # [S, K] posterior weight (sums to 1)
+    kind: np.ndarray       # [S, K] shape kind of the time scale g
+    b: np.ndarray          # [S, K]
+    sigma: np.ndarray      # [S, K]
+    eta: np.ndarray        # [S, K]
+    rate_sd: np.ndarray    # [S, K]
+    mean: np.ndarray       # [S, K, 4] posterior mean of (l0, a, u_now, v_now)
+    cov: np.ndarray        # [S, K, 4, 4]
+    g_now: np.ndarray      # [S, K] g at the last point
+    mean2: np.ndarray      # [S, K, 2] path: (l0, a); wiener: (X_now, rate a + v_now)
+    cov2: np.ndarray       # [S, K, 2, 2]
+
+
+def _batch(series: list[Series]):
+    n = max(len(s.y) for s in series)
+    S = len(series)
+    t = np.zeros((S, n))
+    y = np.zeros((S, n))
+    r = np.ones((S, n))
+    mask = np.zeros((S, n), bool)
+    for i, s in enumerate(series):
+        m = len(s.y)
+        t[i, :m] = s.tau_h / s.span_h
+        t[i, m:] = t[i, m - 1] if m else 0.0
+        y[i, :m], r[i, :m], mask[i, :m] = s.y, s.s ** 2, True
+    return t, y, r, mask
+
+
+def grid_g(grid: Grid, t: np.ndarray) -> np.ndarray:
+    """g of every cell at normalised times t [s, N] -> [s, C, N] (distinct shapes computed once)."""
+    ug, inv = np.unique(np.stack([grid.kind, grid.b]), axis=1, return_inverse=True)
+    return shape_g(ug[0][None, :, None], t[:, None, :], ug[1][None, :, None])[:, inv.ravel(), :]
+
+
+def run_filters(grid: Grid, g: np.ndarray, y: np.ndarray, r: np.ndarray, mask: np.ndarray,
+                st: np.ndarray | None = None, start: int = 1) -> np.ndarray:
+    """Filter every cell over points ``start..N-1`` (state ``st`` after point start-1, else fresh)."""
+    eta2, sig2, q = grid.eta[None, :] ** 2, grid.sigma[None, :] ** 2, grid.rate_sd[None, :] ** 2
+    if st is None:
+        st = kf_init(y[:, :1], r[:, :1] + eta2, (len(y), len(grid)))
+    for k in range(start, y.shape[1]):
+        act = mask[:, k:k + 1]
+        if act.all():
+            kf_step(st, g[:, :, k - 1], g[:, :, k], y[:, k:k + 1], r[:, k:k + 1] + eta2, sig2, q)
+        else:   # padded rows: no time passes (g constant) and the point carries no information
+            kf_step(st, g[:, :, k - 1], g[:, :, k], np.where(act, y[:, k:k + 1], 0.0),
+                    np.where(act, r[:, k:k + 1] + eta2, 1e300), sig2, q, act)
+    return st
+
+
+def summarise(grid: Grid, st: np.ndarray, g_now: np.ndarray, n_pts: np.ndarray) -> ModelFit:
+    """Posterior over the cells from the filter states [NROW, S, C]: top cells, criteria, RUL inputs."""
+    K = min(N_KEEP, len(grid))
+    lint = st[LL] + grid.log_prior[None, :]
+    lml = log_ml(st).max(1)
+    order = np.argsort(-lint, axis=1)[:, :K]
+    top = np.take_along_axis(lint, order, 1)
+    w = np.exp(top - top[:, :1])
+    w /= w.sum(1, keepdims=True)
+    rows = np.arange(st.shape[1])[:, None]
+    sel = st[:, rows, order]                                       # [NROW, S, K]
+    mean = np.moveaxis(sel[0:NX], 0, -1)
+    cov = state_cov(sel)
+    gnow = np.take_along_axis(g_now, order, 1)
+    # the two quantities the RUL needs: path models (l0, a); Wiener (X_now, current rate a + v)
+    T = np.zeros(gnow.shape + (2, NX))
+    if grid.model == "wiener":
+        T[..., 0, 0], T[..., 0, 1], T[..., 0, 2] = 1.0, gnow, 1.0
+        T[..., 1, 1], T[..., 1, 3] = 1.0, 1.0
+    else:
+        T[..., 0, 0], T[..., 1, 1] = 1.0, 1.0
+    mx = lint.max(1, keepdims=True)
+    lev = (mx + np.log(np.exp(lint - mx).sum(1, keepdims=True)))[:, 0]
+    k = grid.n_params
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corr = np.where(n_pts - k - 1 > 0, 2.0 * k * (k + 1) / np.maximum(n_pts - k - 1, 1), 0.0)
+    aicc = np.where(n_pts >= k + 1, -2 * lml + 2 * k + corr, np.inf)
+    lev = np.where(n_pts >= 3, lev, -np.inf)   # proper on the grid from 3 points
+    return ModelFit(grid.model, k, aicc, lml, lev, order, w, grid.kind[order], grid.b[order], grid.sigma[order],
+                    grid.eta[order], grid.rate_sd[order], mean, cov, gnow,
+                    np.einsum("skij,skj->ski", T, mean), np.einsum("skij,skjl,skml->skim", T, cov, T))
+
+
+def concat_fits(parts: list[ModelFit]) -> ModelFit:
+    """One ModelFit from fits of consecutive series chunks."""
+    first = parts[0]
+    vals = {f: (np.concatenate([getattr(p, f) for p in parts]) if isinstance(getattr(first, f), np.ndarray)
+                else getattr(first, f)) for f in first.__dataclass_fields__}
+    return ModelFit(**vals)
+
+
+def fit_model(series: list[Series], grid: Grid, chunk_cells: int = 400_000) -> ModelFit:
+    """Run the filter of every grid cell over every series; keep the top cells per series."""
+    t, y, r, mask = _batch(series)
+    step = max(1, chunk_cells // len(grid))
+    parts = []
+    for a in range(0, len(y), step):
+        sl = slice(a, min(len(y), a + step))
+        g = grid_g(grid, t[sl])                                             # [s, C, N]
+        st = run_filters(grid, g, y[sl], r[sl], mask[sl])
+        parts.append(summarise(grid, st, g[:, :, -1], mask[sl].sum(1)))
+    return concat_fits(parts)
+
+
+def akaike_weights(aicc: np.ndarray, delta_max: float) -> np.ndarray:
+    """Akaike weights over models (last axis), zero beyond ``delta_max`` of the best."""
+    best = np.min(aicc, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore"):
+        d = aicc - best
+    w = np.where(np.isfinite(d) & (d <= delta_max), np.exp(-0.5 * np.where(np.isfinite(d), d, 0.0)), 0.0)
+    s = w.sum(-1, keepdims=True)
+    return np.divide(w, s, out=np.zeros_like(w), where=s > 0)
+
+
+def fit_models(series: list[Series], ms: ModelSettings) -> tuple[list[ModelFit], np.ndarray]:
+    """Fit every model of the settings; returns the fits and the Akaike weights [S, n_models]."""
+    grids = model_grids(ms)
+    fits = [fit_model(series, grids[m]) for m in ms.names]
+    return fits, model_weights(fits, ms)
+
+
+def model_weights(fits: list[ModelFit], ms: ModelSettings) -> np.ndarray:
+    """Weights [S, n_models] by the settings' criterion: AICc, or -2 log evidence (Bayesian)."""
+    if ms.criterion == "evidence":
+        crit = np.stack([-2 * f.log_evidence for f in fits], -1)
+    else:
+        crit = np.stack([f.aicc for f in fits], -1)
+    return akaike_weights(crit, ms.aic_delta_max)
+
+
+# ----------------------------------------------------------------------------- onset
+def degradation_segment(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, sigma: float,
+                        delta: float) -> int | None:
+    """Index of the anchor test of the degradation segment, or None if no onset yet.
+
+    Onset: the first test j from which every later K exceeds the first one by more than
+    max(sigma sqrt(s_j^2 + s_0^2), delta); the anchor is the test before it (or test 0).
+    """
+    n = len(k)
+    if n < 2:
+        return None
+    rise = k - k[0]
+    need = np.maximum(sigma * np.sqrt(std ** 2 + std[0] ** 2), delta)
+    above = rise > need
+    above[0] = False
+    # first j such that above[j:] all true
+    tail_ok = np.logical_and.accumulate(above[::-1])[::-1]
+    js = np.nonzero(tail_ok)[0]
+    if not len(js):
+        return None
+    return max(int(js[0]) - 1, 0)

@@ -1,0 +1,508 @@
+"""Remaining useful life as a distribution, per fault and overall (CLI: ``eha-health prognose``).
+
+For each fault of each actuator, the tests since the fault's last repair; its degradation
+segment from the onset anchor (:func:`degradation.degradation_segment`); the models of
+:mod:`degradation` fitted and averaged; then S Monte Carlo samples of the RUL [h]:
+
+* model m drawn with its Akaike weight, grid cell with its posterior weight, and
+  beta = (l0, a, u_now) ~ N(mean, cov) of that cell (the filter's posterior: it carries
+  each test's diagnosis error);
+* path models (linear, exponential, power): the mean path l0 + a g(t~) reaches the
+  threshold at t~* = g^-1((thr - l0) / a); RUL = (t~* - t~_now) T_s (0 if already above,
+  no crossing if a <= 0);
+* Wiener: from X_now = l0 + a g_now + u_now, the first passage of the threshold in the
+  time scale g is inverse Gaussian, dg ~ IG(mean (thr - X_now)/a, shape (thr - X_now)^2/sigma^2);
+  t~* = g^-1(g_now + dg).
+
+Samples beyond ``horizon_factor`` data spans count as "beyond the horizon" (inf). The
+overall RUL is the first fault to reach its threshold: min over faults, sample by sample
+(faults drawn independently). ``p_fail_next`` = P(RUL <= next_check_h).
+
+Fleet prior: the other actuators with at least ``fleet.min_points`` points since onset
+give lives from onset to threshold L_j = tau_now + median RUL; log L is fitted by a normal
+(lognormal prior on the life of this fault). An actuator with fewer than
+``fleet.use_below_points`` points since onset has its samples importance-weighted by that
+prior density at tau_now + RUL (Bayes: posterior ~ likelihood x prior); ``fleet_prior``
+says so in the output. With fewer than ``min_tests`` tests since the last repair no RUL
+is given and ``reason`` says why.
+
+Random draws are common random numbers per fault (``SeedSequence([seed, fault])``), so an
+actuator's result depends on its own data (and the fleet prior) only, and the same seed
+gives the same result.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .config import PrognosticsError, Settings, load_settings
+from .degradation import (MODELS, ModelFit, Series, degradation_segment, fit_models, shape_g,
+                          shape_g_inv)
+from .thresholds import FAULTS, threshold_values
+
+CHUNK = 256   # series per sampling chunk (memory ~ CHUNK x samples x 30 floats)
+
+
+# ----------------------------------------------------------------------------- random draws
+@dataclass(frozen=True)
+class Draws:
+    """Common random numbers of one fault: uniforms and normals of every sample."""
+    u_model: np.ndarray
+    u_cell: np.ndarray
+    z: np.ndarray        # [M, 4]
+    z_ig: np.ndarray
+    u_ig: np.ndarray
+
+    @classmethod
+    def make(cls, seed: int, fault_index: int, m: int) -> "Draws":
+        rng = np.random.default_rng([seed, fault_index])
+        return cls(rng.random(m), rng.random(m), rng.standard_normal((m, 4)), rng.standard_normal(m),
+                   rng.random(m))
+
+
+def inverse_gaussian(mean: np.ndarray, shape: np.ndarray, z: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Inverse Gaussian IG(mean, shape) from a standard normal z and a uniform u.
+
+    Michael, Schucany & Haas (1976), in the cancellation-free form
+    x = mean 2 shape / (2 shape + mean y + sqrt(mean y (4 shape + mean y))), y = z^2;
+    return x if u <= mean / (mean + x) else mean^2 / x. Written out (numpy's ``wald``
+    draws its own numbers) so that the draws are common random numbers.
+    """
+    y = z * z
+    my = mean * y
+    x = mean * 2 * shape / (2 * shape + my + np.sqrt(my * (4 * shape + my)))
+    return np.where(u <= mean / (mean + x), x, mean * mean / x)
+
+
+def weighted_quantiles(x: np.ndarray, w: np.ndarray | None, qs) -> np.ndarray:
+    """Quantiles of samples ``x`` (inf allowed) with weights ``w`` (inverted CDF, last axis)."""
+    order = np.argsort(x, axis=-1)
+    xs = np.take_along_axis(x, order, -1)
+    if w is None:
+        cw = np.broadcast_to(np.arange(1, x.shape[-1] + 1) / x.shape[-1], x.shape)
+    else:
+        ws = np.take_along_axis(w, order, -1)
+        cw = np.cumsum(ws, -1)
+        cw = cw / cw[..., -1:]
+    out = []
+    for q in qs:
+        i = np.minimum((cw < q - 1e-12).sum(-1), x.shape[-1] - 1)
+        out.append(np.take_along_axis(xs, i[..., None], -1)[..., 0])
+    return np.stack(out, -1)
+
+
+# ----------------------------------------------------------------------------- sampling
+def _pick(cum: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Index per row of ``cum`` [s, K] (cumulative weights) for uniforms ``u`` [M]: [s, M]."""
+    s, k = cum.shape
+    flat = (cum + 2.0 * np.arange(s)[:, None]).ravel()
+    idx = np.searchsorted(flat, (u[None, :] + 2.0 * np.arange(s)[:, None]).ravel() * (1 - 1e-12), "left")
+    return np.minimum(idx.reshape(s, -1) - k * np.arange(s)[:, None], k - 1)
+
+
+def _chol2(c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cholesky factor (l00, l10, l11) of 2x2 covariances [..., 2, 2] (semi-definite allowed)."""
+    l00 = np.sqrt(np.maximum(c[..., 0, 0], 0.0))
+    l10 = np.divide(c[..., 0, 1], l00, out=np.zeros_like(l00), where=l00 > 0)
+    l11 = np.sqrt(np.maximum(c[..., 1, 1] - l10 * l10, 0.0))
+    return l00, l10, l11
+
+
+def _chol2(c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cholesky factor (l00, l10, l11) of 2x2 covariances [..., 2, 2] (semi-definite allowed)."""
+    l00 = np.sqrt(np.maximum(c[..., 0, 0], 0.0))
+    l10 = np.divide(c[..., 0, 1], l00, out=np.zeros_like(l00), where=l00 > 0)
+    l11 = np.sqrt(np.maximum(c[..., 1, 1] - l10 * l10, 0.0))
+    return l00, l10, l11
+
+
+def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, thr: np.ndarray,
+               draws: Draws, horizon_factor: float) -> np.ndarray:
+    """RUL samples [S, M] in hours (inf: no crossing within the horizon)."""
+    S, M = len(series), len(draws.u_model)
+    out = np.empty((S, M))
+    span = np.array([s.span_h for s in series])
+    t_now = np.array([s.tau_h[-1] for s in series]) / span
+    cum_models = np.cumsum(model_w, -1)
+    cum_models[:, -1] = 1.0
+    z0, z1 = draws.z[None, :, 0], draws.z[None, :, 1]
+    for a in range(0, S, CHUNK):
+        sl = slice(a, min(S, a + CHUNK))
+        n = sl.stop - sl.start
+        rows = np.arange(n)[:, None]
+        which = _pick(cum_models[sl], draws.u_model)
+        rul = np.full((n, M), np.inf)
+        tn = np.broadcast_to(t_now[sl, None], (n, M))
+        th = thr[sl, None]
+        for mi, f in enumerate(fits):
+            use = which == mi
+            if not use.any():
+                continue
+            cum = np.cumsum(f.weight[sl], -1)
+            cum[:, -1] = 1.0
+            c = _pick(cum, draws.u_cell)
+            l00, l10, l11 = (v[rows, c] for v in _chol2(f.cov2[sl]))
+            m2 = f.mean2[sl][rows, c]
+            p0 = m2[..., 0] + l00 * z0                      # path: l0; wiener: X_now
+            p1 = m2[..., 1] + l10 * z0 + l11 * z1           # path: a;  wiener: current rate
+            b, kind, gn = f.b[sl][rows, c], f.kind[sl][rows, c], f.g_now[sl][rows, c]
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                if f.model == "wiener":
+                    sig, rq = f.sigma[sl][rows, c], f.rate_sd[sl][rows, c]
+                    d = th - p0
+                    mean = d / p1
+                    # the rate's own random walk adds q dg^3 / 3 to the level variance at dg:
+                    # folded into an equivalent diffusion at the mean passage (moment match)
+                    s2 = sig * sig + rq * rq * mean * mean / 3.0
+                    dg = inverse_gaussian(mean, d * d / s2, draws.z_ig[None, :], draws.u_ig[None, :])
+                    ok = (d > 0) & (p1 > 0)
+                    t_star = shape_g_inv(kind, np.where(ok, gn + dg, 0.0), b)
+                    r = np.where(d <= 0, 0.0, np.where(p1 > 0, t_star - tn, np.inf))
+                else:
+                    level = p0 + p1 * gn
+                    ok = (level < th) & (p1 > 0)
+                    t_star = shape_g_inv(kind, np.where(ok, (th - p0) / p1, 0.0), b)
+                    r = np.where(level >= th, 0.0, np.where(p1 > 0, t_star - tn, np.inf))
+            r = np.where(np.isfinite(r), np.maximum(r, 0.0), np.inf)
+            rul = np.where(use, r, rul)
+        rul *= span[sl, None]
+        rul[rul > horizon_factor * span[sl, None]] = np.inf
+        out[sl] = rul
+    return out
+
+
+# ----------------------------------------------------------------------------- fleet prior
+@dataclass(frozen=True)
+class FleetPrior:
+    """Lognormal prior on a fault's life from onset to threshold [h]."""
+    mu_log: float
+    sd_log: float
+    members: int
+
+    def logpdf(self, life_h: np.ndarray) -> np.ndarray:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = (np.log(life_h) - self.mu_log) / self.sd_log
+            return np.where(np.isfinite(life_h) & (life_h > 0), -0.5 * z * z - np.log(life_h), -np.inf)
+
+
+def fleet_prior(lives_h, min_members: int) -> FleetPrior | None:
+    """Lognormal fitted to members' lives (finite, > 0); None with fewer than ``min_members``."""
+    x = np.asarray([v for v in lives_h if np.isfinite(v) and v > 0], float)
+    if len(x) < min_members:
+        return None
+    lx = np.log(x)
+    return FleetPrior(float(lx.mean()), max(float(lx.std(ddof=1)), 0.05), len(x))
+
+
+def prior_weights(samples_h: np.ndarray, tau_now_h: np.ndarray, prior: FleetPrior) -> np.ndarray:
+    """Importance weights of RUL samples [S, M] under the prior on tau_now + RUL."""
+    lp = prior.logpdf(tau_now_h[:, None] + samples_h)
+    top = np.max(lp, -1, keepdims=True)
+    return np.exp(lp - np.where(np.isfinite(top), top, 0.0))
+
+
+# ----------------------------------------------------------------------------- summaries
+@dataclass
+class FaultPrediction:
+    """RUL distribution of one fault (or the overall one) of one actuator."""
+    samples: np.ndarray | None          # [M] hours (inf: beyond horizon)
+    weights: np.ndarray | None          # [M] or None (equal)
+    model: str | None = None
+    model_weights: dict = field(default_factory=dict)
+    threshold: float | None = None
+    n_tests: int = 0
+    n_points: int = 0
+    onset_h: float | None = None
+    k_last: float | None = None
+    std_last: float | None = None
+    fleet_prior: bool = False
+    reason: str | None = None
+    series: Series | None = None
+    fits: list | None = None
+    fit_index: int | None = None
+
+    def quantiles(self) -> np.ndarray | None:
+        """(p05, median, p95) of the RUL [h]; inf beyond the horizon."""
+        if self.samples is None:
+            return None
+        if getattr(self, "_q", None) is None:
+            self._q = weighted_quantiles(self.samples, self.weights, (0.05, 0.5, 0.95))
+        return self._q
+
+    def p_fail(self, horizon_h: float) -> float | None:
+        if self.samples is None:
+            return None
+        w = self.weights if self.weights is not None else np.ones_like(self.samples)
+        return float(np.sum(w * (self.samples <= horizon_h)) / np.sum(w))
+
+
+def _num(v: float | None, nd: int = 1):
+    return None if v is None or not np.isfinite(v) else round(float(v), nd)
+
+
+def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None) -> dict:
+    """The F object of ``prognose --json``."""
+    q = p.quantiles()
+    d = {"model": p.model, "rul_median_h": None, "rul_p05_h": None, "rul_p95_h": None,
+         "p_fail_next": None, "threshold": _num(p.threshold, 4), "n_tests": p.n_tests}
+    if q is not None:
+        d["rul_p05_h"], d["rul_median_h"], d["rul_p95_h"] = (_num(v) for v in q)
+        d["p_fail_next"] = round(p.p_fail(next_check_h), 4)
+        if usage_per_h is not None:
+            d["rul_p05_usage"], d["rul_median_usage"], d["rul_p95_usage"] = (
+                _num(v * usage_per_h, 2) for v in q)
+        beyond = [n for n, v in zip(("p05", "median", "p95"), q) if not np.isfinite(v)]
+        if beyond and p.reason is None:
+            p.reason = f"rul_{', rul_'.join(beyond)} beyond the prediction horizon (null)"
+    if p.model_weights:
+        d["model_weights"] = {k: round(v, 3) for k, v in p.model_weights.items() if v > 0}
+    d.update({"n_points": p.n_points, "onset_h": _num(p.onset_h), "k_last": _num(p.k_last, 4),
+              "std_last": _num(p.std_last, 5), "fleet_prior": p.fleet_prior})
+    if p.reason:
+        d["reason"] = p.reason
+    return d
+
+
+def overall(preds: dict[str, FaultPrediction], n_tests: int) -> FaultPrediction:
+    """First fault to reach its threshold, sample by sample."""
+    have = {f: p for f, p in preds.items() if p.samples is not None}
+    if not have:
+        reasons = "; ".join(f"{f}: {p.reason}" for f, p in preds.items())
+        return FaultPrediction(None, None, None, n_tests=n_tests, reason=f"no fault has a RUL ({reasons})")
+    S = np.stack([p.samples for p in have.values()])
+    W = np.ones(S.shape[1])
+    for p in have.values():
+        if p.weights is not None:
+            W = W * p.weights
+    first = np.argmin(S, 0)
+    out = FaultPrediction(S.min(0), None if all(p.weights is None for p in have.values()) else W,
+                          "first-to-threshold", n_tests=n_tests)
+    wn = W / W.sum()
+    p_first = {f: float(np.sum(wn * (first == i) * np.isfinite(S.min(0)))) for i, f in enumerate(have)}
+    out.model_weights = {}
+    out.p_first = p_first
+    dom = max(p_first, key=p_first.get) if any(p_first.values()) else min(
+        have, key=lambda f: np.nanmedian(np.where(np.isfinite(have[f].samples), have[f].samples, np.nan)) if
+        np.isfinite(have[f].samples).any() else np.inf)
+    out.dominant = dom
+    out.threshold = have[dom].threshold
+    missing = [f for f in preds if f not in have]
+    if missing:
+        out.note = "without " + ", ".join(missing) + " (no RUL: " + "; ".join(
+            f"{f}: {preds[f].reason}" for f in missing) + ")"
+    return out
+
+
+# ----------------------------------------------------------------------------- per-fault preparation
+def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold: float, n_tests: int,
+                  s: Settings) -> tuple[FaultPrediction, Series | None]:
+    """Degradation segment of one fault's post-repair tests, or the reason there is none."""
+    p = FaultPrediction(None, None, threshold=threshold, n_tests=n_tests)
+    if n_tests:
+        p.k_last, p.std_last = float(k[-1]), float(std[-1])
+    if n_tests < s.prognosis.min_tests:
+        p.reason = (f"only {n_tests} test(s) since the last repair (fewer than {s.prognosis.min_tests}): no RUL")
+        return p, None
+    anchor = degradation_segment(time_h, k, std, s.prognosis.onset_sigma, s.prognosis.onset_delta)
+    if anchor is None:
+        if k[-1] >= threshold:
+            p.reason = f"K {k[-1]:.3f} at or beyond the threshold {threshold:.3f} with no trend: RUL 0"
+            p.samples = np.zeros(1)
+            return p, None
+        p.reason = (f"no degradation since the last repair: K {k[-1]:.4f} +- {std[-1]:.4f} "
+                    f"(threshold {threshold:.3f}), no trend to extrapolate")
+        return p, None
+    p.onset_h = float(time_h[anchor])
+    p.n_points = n_tests - anchor
+    if p.n_points < 3:
+        p.reason = (f"degradation onset after {time_h[anchor]:g} h: only {p.n_points} points since then "
+                    f"(fewer than 3): no RUL")
+        return p, None
+    tau = time_h[anchor:] - time_h[anchor]
+    ser = Series(tau, k[anchor:], std[anchor:], float(tau[-1]))
+    p.series = ser
+    return p, ser
+
+
+def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_index: int, s: Settings) -> None:
+    """Fit and sample every prepared series of one fault (in place)."""
+    idx = [i for i, p in enumerate(preds) if p.series is not None]
+    if not idx:
+        return
+    series = [preds[i].series for i in idx]
+    fits, mw = fit_models(series, s.models)
+    draws = Draws.make(s.prognosis.seed, fault_index, s.prognosis.samples)
+    samples = sample_rul(series, fits, mw, thresholds[idx], draws, s.prognosis.horizon_factor)
+    names = [f.model for f in fits]
+    for j, i in enumerate(idx):
+        p = preds[i]
+        p.samples = samples[j]
+        p.model_weights = dict(zip(names, map(float, mw[j])))
+        p.model = names[int(np.argmax(mw[j]))]
+        p.fits, p.fit_index = fits, j
+
+
+def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings) -> None:
+    """Importance-weight the samples of an actuator with few points since onset by the fleet prior."""
+    if prior is None or p.samples is None or p.series is None or p.n_points >= s.fleet.use_below_points:
+        return
+    w = prior_weights(p.samples[None, :], np.array([p.series.tau_h[-1]]), prior)[0]
+    ess = w.sum() ** 2 / max(np.sum(w * w), 1e-300) if w.sum() > 0 else 0.0
+    if ess >= 50:
+        p.weights, p.fleet_prior, p._q = w, True, None
+    else:
+        p.reason = f"fleet prior not applied: it conflicts with the data (effective samples {ess:.0f})"
+
+
+def life_estimate(p: FaultPrediction) -> float:
+    """Life from onset to threshold [h] that a fleet member contributes (tau_now + median RUL)."""
+    if p.samples is None or p.series is None:
+        return math.nan
+    med = weighted_quantiles(p.samples, p.weights, (0.5,))[0]
+    return float(p.series.tau_h[-1] + med) if np.isfinite(med) else math.nan
+
+
+# ----------------------------------------------------------------------------- prognose
+def prognose(history, actuator: str | None = None, next_check_h: float | None = None,
+             settings: Settings | None = None, thresholds: dict[str, float] | None = None,
+             details: bool = False):
+    """RUL per fault and overall of every actuator (or one) of a history: the ``prognose --json`` object.
+
+    ``history``: a :class:`store.History`, a :class:`store.HistoryStore`, or a path to a SQLite
+    history or a HISTORY.csv. Returns ``{"actuators": {ID: {"faults": {"gm": F, "fsj": F, "bkl": F},
+    "overall": F}}}``; F has ``model``, ``rul_median_h``, ``rul_p05_h``, ``rul_p95_h``,
+    ``p_fail_next``, ``threshold``, ``n_tests`` (null RUL with a ``reason`` where none can be
+    given; overall also ``dominant_fault``). With ``details=True`` returns ``(object,
+    {actuator: {fault|'overall': FaultPrediction}})`` for plots. Raises :class:`PrognosticsError`.
+    """
+    from .store import as_history
+    s = settings or load_settings()
+    hist = as_history(history, s)
+    nc = s.prognosis.next_check_h if next_check_h is None else float(next_check_h)
+    if not (math.isfinite(nc) and nc > 0):
+        raise PrognosticsError(f"next-check interval must be a positive number of hours, got {next_check_h!r}")
+    if not hist.actuators:
+        raise PrognosticsError("the history is empty: no tests to prognose")
+    if actuator is not None and actuator not in hist.actuators:
+        known = ", ".join(sorted(hist.actuators)[:10])
+        raise PrognosticsError(f"unknown actuator {actuator!r} (the history has: {known}"
+                               f"{', ...' if len(hist.actuators) > 10 else ''})")
+    thr = thresholds or threshold_values(s)
+    ids = sorted(hist.actuators)
+    preds: dict[str, dict[str, FaultPrediction]] = {a: {} for a in ids}
+    for fi, f in enumerate(FAULTS):
+        plist = []
+        for a in ids:
+            h = hist.actuators[a]
+            since = h.since_repair(f)
+            p, _ = prepare_fault(h.time_h[since], h.k[since, fi], h.std[since, fi], thr[f], int(since.sum()), s)
+            plist.append(p)
+            preds[a][f] = p
+        thr_arr = np.full(len(plist), thr[f])
+        predict_series(plist, thr_arr, fi, s)
+        # fleet prior from the members (enough points), applied to the actuators with few points
+        lives = [life_estimate(p) for p in plist if p.series is not None and p.n_points >= s.fleet.min_points]
+        prior = fleet_prior(lives, s.fleet.min_members)
+        for p in plist:
+            apply_fleet_prior(p, prior, s)
+    out = {}
+    detail = {}
+    for a in ids:
+        h = hist.actuators[a]
+        rate = h.usage_per_hour()
+        faults = {f: summary(preds[a][f], nc, rate) for f in FAULTS}
+        ov = overall(preds[a], len(h.time_h))
+        o = summary(ov, nc, rate)
+        o["dominant_fault"] = getattr(ov, "dominant", None)
+        if hasattr(ov, "p_first"):
+            o["p_first"] = {f: round(v, 4) for f, v in ov.p_first.items()}
+        if getattr(ov, "note", None):
+            o["note"] = ov.note
+        for key in ("n_points", "onset_h", "k_last", "std_last"):
+            o.pop(key, None)
+        if actuator is None or a == actuator:
+            out[a] = {"faults": faults, "overall": o}
+            detail[a] = {**preds[a], "overall": ov}
+    obj = {"actuators": out}
+    return (obj, detail) if details else obj
+
+
+# ----------------------------------------------------------------------------- plot
+def trend_band(p: FaultPrediction, tau_h: np.ndarray, z: float = 1.645) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean path and +-z sd band [K] of the most probable model's best cell at hours ``tau_h``
+    since onset (Wiener, from the last test on: X_now + rate dg, Var + sigma^2 dg + q dg^3 / 3)."""
+    f = p.fits[int(np.argmax([p.model_weights.get(ff.model, 0.0) for ff in p.fits]))]
+    j = p.fit_index
+    m, P = f.mean[j, 0], f.cov[j, 0]
+    kind, b = f.kind[j, 0], f.b[j, 0]
+    g = shape_g(kind, np.asarray(tau_h, float) / p.series.span_h, b)
+    if f.model == "wiener":
+        gn = f.g_now[j, 0]
+        dg = np.maximum(g - gn, 0.0)
+        H = np.stack([np.ones_like(g), g, np.ones_like(g), dg], -1)
+        mean = H @ m
+        var = np.einsum("ni,ij,nj->n", H, P, H) + f.sigma[j, 0] ** 2 * dg + f.rate_sd[j, 0] ** 2 * dg ** 3 / 3
+    else:
+        H = np.stack([np.ones_like(g), g], -1)
+        mean = H @ m[:2]
+        var = np.einsum("ni,ij,nj->n", H, P[:2, :2], H)
+    sd = np.sqrt(np.maximum(var, 0.0))
+    return mean, mean - z * sd, mean + z * sd
+
+
+def plot_prognosis(history, path, actuator: str | None = None, next_check_h: float | None = None,
+                   settings: Settings | None = None) -> dict:
+    """PNG of one actuator's prognosis (``prognose --plot FILE.png``); returns the prognose object.
+
+    Per fault: the tests with 1-sd error bars, the fitted trend and its 90 % band, the
+    threshold, and the RUL distribution (histogram of the Monte Carlo samples, on the
+    time axis from the last test). ``actuator`` defaults to the first of the history.
+    """
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from .store import as_history
+    s = settings or load_settings()
+    hist = as_history(history, s)
+    if actuator is None:
+        if not hist.actuators:
+            raise PrognosticsError("the history is empty: no tests to prognose")
+        actuator = sorted(hist.actuators)[0]
+    obj, detail = prognose(hist, actuator, next_check_h, settings=s, details=True)
+    h, d = hist.actuators[actuator], detail[actuator]
+    fig, axes = plt.subplots(3, 1, figsize=(9, 10), sharex=True)
+    for ax, (fi, f) in zip(axes, enumerate(FAULTS)):
+        p = d[f]
+        ax.errorbar(h.time_h, h.k[:, fi], yerr=h.std[:, fi], fmt="o", ms=3, color="k", label="diagnoses (1 sd)")
+        for t, ff, *_ in h.repairs:
+            if ff in (f, "all"):
+                ax.axvline(t, color="C2", ls=":", lw=1)
+        if p.threshold is not None:
+            ax.axhline(p.threshold, color="C3", lw=1, label=f"threshold {p.threshold:.3f}")
+        q = p.quantiles()
+        if p.series is not None and q is not None and p.fits is not None:
+            t0 = p.onset_h
+            end = p.series.tau_h[-1] + (q[2] if np.isfinite(q[2]) else 2 * p.series.span_h)
+            wiener = p.model == "wiener"     # its past is the data; its trend starts at the last test
+            tau = np.linspace(p.series.tau_h[-1] if wiener else 0.0, end, 200)
+            mean, lo, hi = trend_band(p, tau)
+            ax.plot(t0 + tau, mean, color="C0", label=f"trend ({p.model})")
+            ax.fill_between(t0 + tau, lo, hi, color="C0", alpha=0.2, label="90 % band")
+            fin = p.samples[np.isfinite(p.samples)]
+            if len(fin):
+                ax2 = ax.twinx()
+                ax2.hist(h.time_h[-1] + fin, bins=40, weights=None if p.weights is None else
+                         p.weights[np.isfinite(p.samples)], color="C1", alpha=0.35)
+                ax2.set_yticks([])
+            ax.set_title(f"{actuator} {f}: RUL median {q[1]:.0f} h [{q[0]:.0f}, {q[2]:.0f}] (5-95 %)", fontsize=9)
+        else:
+            ax.set_title(f"{actuator} {f}: {p.reason}", fontsize=8)
+        ax.set_ylabel(f"K_{f.upper()}")
+        ax.legend(fontsize=7, loc="upper left")
+    axes[-1].set_xlabel("time [h]  (orange: RUL distribution from the last test)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return obj

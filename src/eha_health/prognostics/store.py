@@ -1,0 +1,534 @@
+"""Health history: every diagnosis of every actuator, in one SQLite file (WAL, transactions).
+
+CLI wiring (after the merge): ``eha-health history add RUN.csv|BAG.mcap --actuator ID
+[--time-h T] [--usage U]`` -> :meth:`HistoryStore.add_diagnosis`; ``history list
+[--actuator ID] [--json]`` -> :meth:`HistoryStore.list_tests`; ``history import FILE.csv`` ->
+:meth:`HistoryStore.import_csv`; ``history repair --actuator ID --fault gm|fsj|bkl|all
+--time-h T`` -> :meth:`HistoryStore.record_repair`; ``--history DB`` defaults to
+:func:`default_history_path`. Bad input raises :class:`PrognosticsError` (a ValueError)
+with one line naming the problem (exit code 2); the store is then unchanged.
+
+Schema version 1 (``PRAGMA user_version`` and table ``schema_version``):
+
+* ``tests``: one row per diagnosis: ``actuator_id``, ``time_h`` (operating hours, the
+  prognostics clock), ``wall_time_utc`` (ISO 8601), ``sim_time_s`` (ROS / simulated stamp
+  [s], optional), ``usage`` and ``usage_unit`` (flight hours or cycles, optional), ``k_gm,
+  k_fsj, k_bkl`` in [0, 1.5] and ``std_gm, std_fsj, std_bkl`` >= 0, ``method``, ``cost`` and
+  ``fit_rms`` (JSON, per-channel RMS: fit quality), ``discrepancy`` (verdict), ``warnings``
+  (JSON), ``source_path``, ``source_hash`` (sha256 of the recording, or of the diagnosis
+  inputs when there is no file; UNIQUE: the same recording twice adds no row),
+  ``software_version``; UNIQUE (actuator_id, time_h).
+* ``maintenance``: ``actuator_id``, ``time_h``, ``fault`` (gm, fsj, bkl, all), ``action``
+  (repair, replace), ``wall_time_utc``, ``note``. A fault's trend restarts at its last
+  maintenance: tests at or after that time count.
+
+Appends are validated first, then written in one ``BEGIN IMMEDIATE`` transaction: a writer
+killed mid-append leaves the previous state (SQLite's atomic commit), never a partial row.
+"""
+from __future__ import annotations
+
+import csv
+import datetime as _dt
+import hashlib
+import json
+import math
+import os
+import sqlite3
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .config import PrognosticsError, Settings, load_settings
+
+SCHEMA_VERSION = 1
+K_MAX = 1.5
+FAULT_NAMES = ("gm", "fsj", "bkl")
+MAINT_FAULTS = FAULT_NAMES + ("all",)
+ACTIONS = ("repair", "replace")
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL, applied_utc TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS tests (
+    id INTEGER PRIMARY KEY,
+    actuator_id TEXT NOT NULL CHECK (length(actuator_id) > 0),
+    time_h REAL NOT NULL CHECK (time_h >= 0),
+    wall_time_utc TEXT NOT NULL,
+    sim_time_s REAL,
+    usage REAL,
+    usage_unit TEXT,
+    k_gm REAL NOT NULL CHECK (k_gm BETWEEN 0 AND 1.5),
+    k_fsj REAL NOT NULL CHECK (k_fsj BETWEEN 0 AND 1.5),
+    k_bkl REAL NOT NULL CHECK (k_bkl BETWEEN 0 AND 1.5),
+    std_gm REAL NOT NULL CHECK (std_gm >= 0),
+    std_fsj REAL NOT NULL CHECK (std_fsj >= 0),
+    std_bkl REAL NOT NULL CHECK (std_bkl >= 0),
+    method TEXT,
+    cost REAL,
+    fit_rms TEXT,
+    discrepancy TEXT,
+    warnings TEXT,
+    source_path TEXT,
+    source_hash TEXT NOT NULL UNIQUE,
+    software_version TEXT NOT NULL,
+    UNIQUE (actuator_id, time_h)
+);
+CREATE TABLE IF NOT EXISTS maintenance (
+    id INTEGER PRIMARY KEY,
+    actuator_id TEXT NOT NULL,
+    time_h REAL NOT NULL CHECK (time_h >= 0),
+    fault TEXT NOT NULL CHECK (fault IN ('gm', 'fsj', 'bkl', 'all')),
+    action TEXT NOT NULL CHECK (action IN ('repair', 'replace')),
+    wall_time_utc TEXT NOT NULL,
+    note TEXT,
+    UNIQUE (actuator_id, time_h, fault)
+);
+CREATE INDEX IF NOT EXISTS tests_by_actuator ON tests (actuator_id, time_h);
+"""
+
+TEST_COLUMNS = ("actuator_id", "time_h", "wall_time_utc", "sim_time_s", "usage", "usage_unit", "k_gm", "k_fsj",
+                "k_bkl", "std_gm", "std_fsj", "std_bkl", "method", "cost", "fit_rms", "discrepancy", "warnings",
+                "source_path", "source_hash", "software_version")
+
+
+def default_history_path(settings: Settings | None = None) -> Path:
+    """``$EHA_HEALTH_HISTORY`` if set, else ``history.default_path`` of data/prognostics.yaml."""
+    env = os.environ.get("EHA_HEALTH_HISTORY")
+    return Path(env or (settings or load_settings()).history.default_path).expanduser()
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def _version() -> str:
+    import eha_health
+    return str(getattr(eha_health, "__version__", "unknown"))
+
+
+def sha256_file(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def sha256_json(obj) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+@dataclass
+class HealthRecord:
+    """One diagnosis to append (K and std in the order gm, fsj, bkl)."""
+    actuator_id: str
+    time_h: float
+    k: tuple
+    std: tuple
+    usage: float | None = None
+    usage_unit: str | None = None
+    sim_time_s: float | None = None
+    method: str | None = None
+    cost: float | None = None
+    fit_rms: dict | None = None
+    discrepancy: str | None = None
+    warnings: list | None = None
+    source_path: str | None = None
+    source_hash: str | None = None
+    wall_time_utc: str | None = None
+    software_version: str | None = None
+
+    def content_hash(self) -> str:
+        """Hash of the diagnosis inputs when there is no recording file."""
+        return sha256_json({"actuator_id": self.actuator_id, "time_h": self.time_h,
+                            "k": [float(v) for v in self.k], "std": [float(v) for v in self.std],
+                            "usage": self.usage, "method": self.method})
+
+    def row(self) -> tuple:
+        return (self.actuator_id, float(self.time_h), self.wall_time_utc or _now(), self.sim_time_s,
+                self.usage, self.usage_unit, *map(float, self.k), *map(float, self.std), self.method,
+                self.cost, json.dumps(self.fit_rms) if self.fit_rms is not None else None, self.discrepancy,
+                json.dumps(self.warnings) if self.warnings is not None else None, self.source_path,
+                self.source_hash or self.content_hash(), self.software_version or _version())
+
+
+def _check_record(r: HealthRecord, where: str) -> None:
+    if not isinstance(r.actuator_id, str) or not r.actuator_id.strip():
+        raise PrognosticsError(f"{where}: empty actuator id")
+    if not isinstance(r.time_h, (int, float)) or not math.isfinite(r.time_h) or r.time_h < 0:
+        raise PrognosticsError(f"{where}: time_h must be a finite number of hours >= 0, got {r.time_h!r}")
+    for name, v in zip(FAULT_NAMES, r.k):
+        if not isinstance(v, (int, float)) or not math.isfinite(v) or not 0.0 <= v <= K_MAX:
+            raise PrognosticsError(f"{where}: k_{name}={v!r} outside [0, {K_MAX}]")
+    for name, v in zip(FAULT_NAMES, r.std):
+        if not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise PrognosticsError(f"{where}: std_{name} is {v!r} (standard errors must be finite)")
+        if v < 0:
+            raise PrognosticsError(f"{where}: std_{name}={v!r} is negative")
+    if r.usage is not None and (not math.isfinite(r.usage) or r.usage < 0):
+        raise PrognosticsError(f"{where}: usage must be a finite number >= 0, got {r.usage!r}")
+
+
+# ----------------------------------------------------------------------------- in-memory history
+@dataclass
+class ActuatorHistory:
+    """Tests of one actuator in time order, and its maintenance actions."""
+    actuator_id: str
+    time_h: np.ndarray
+    k: np.ndarray          # [n, 3]
+    std: np.ndarray        # [n, 3]
+    usage: np.ndarray      # [n], NaN where not given
+    repairs: list = field(default_factory=list)   # (time_h, fault in gm/fsj/bkl/all, action)
+
+    def since_repair(self, fault: str) -> np.ndarray:
+        """Mask of the tests at or after the fault's last maintenance (its current trend)."""
+        times = [t for t, f, *_ in self.repairs if f in (fault, "all")]
+        return self.time_h >= max(times) if times else np.ones(len(self.time_h), bool)
+
+    def usage_per_hour(self) -> float | None:
+        """Usage rate [usage unit / h] from a straight line through the tests with usage, or None."""
+        ok = np.isfinite(self.usage)
+        if ok.sum() < 2 or np.ptp(self.time_h[ok]) <= 0:
+            return None
+        return float(np.polyfit(self.time_h[ok], self.usage[ok], 1)[0])
+
+
+@dataclass
+class History:
+    actuators: dict = field(default_factory=dict)   # id -> ActuatorHistory
+
+
+def _history_from_records(recs: list[HealthRecord], repairs: list[tuple]) -> History:
+    by: dict[str, list[HealthRecord]] = {}
+    for r in recs:
+        by.setdefault(r.actuator_id, []).append(r)
+    h = History()
+    for a, rs in by.items():
+        rs = sorted(rs, key=lambda r: r.time_h)
+        h.actuators[a] = ActuatorHistory(
+            a, np.array([r.time_h for r in rs], float), np.array([r.k for r in rs], float),
+            np.array([r.std for r in rs], float),
+            np.array([np.nan if r.usage is None else r.usage for r in rs], float),
+            [(t, f, act) for (aa, t, f, act) in repairs if aa == a])
+    return h
+
+
+def _float(text: str, where: str, name: str) -> float:
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        raise PrognosticsError(f"{where}: {name} {text!r} is not a number") from None
+    return v
+
+
+def read_history_csv(path: str | Path, settings: Settings | None = None) -> list[HealthRecord]:
+    """Rows of a HISTORY.csv: ``actuator_id, time_h, k_gm, k_fsj, k_bkl`` [+ ``std_gm, std_fsj,
+    std_bkl, usage``]. Validated row by row. A missing std is the scatter of that actuator's
+    series about a smooth trend (:func:`noise_estimate`), at least ``history.default_std``."""
+    s = settings or load_settings()
+    path = Path(path)
+    if not path.is_file():
+        raise PrognosticsError(f"{path}: no such file")
+    with path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        cols = [c.strip() for c in (reader.fieldnames or [])]
+        missing = [c for c in ("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl") if c not in cols]
+        if missing:
+            raise PrognosticsError(f"{path}: missing column(s) {', '.join(missing)}")
+        reader.fieldnames = cols
+        recs = []
+        for i, row in enumerate(reader, start=2):
+            where = f"{path.name} line {i}"
+            if None in row:
+                raise PrognosticsError(f"{where}: more values than columns")
+            row = {k: (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
+            k = tuple(_float(row[f"k_{n}"], where, f"k_{n}") for n in FAULT_NAMES)
+            std = tuple(_float(row[f"std_{n}"], where, f"std_{n}") if row.get(f"std_{n}") not in (None, "")
+                        else None for n in FAULT_NAMES)
+            usage = _float(row["usage"], where, "usage") if row.get("usage") not in (None, "") else None
+            r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k,
+                             tuple(0.0 if v is None else v for v in std), usage=usage, method="import")
+            _check_record(r, where)
+            r.std = std
+            r.source_path = str(path)
+            recs.append((where, r))
+    if not recs:
+        raise PrognosticsError(f"{path}: the history is empty (no rows)")
+    _check_order([(w, r) for w, r in recs])
+    out = [r for _, r in recs]
+    _fill_missing_std(out, s.history.default_std)
+    return out
+
+
+def noise_estimate(k: np.ndarray) -> float:
+    """1-sd of the scatter of a series about a smooth trend: 1.4826 MAD(second differences) / sqrt(6)
+    (a second difference of white noise has variance 6 s^2); NaN with fewer than 5 points."""
+    k = np.asarray(k, float)
+    if len(k) < 5:
+        return float("nan")
+    d2 = np.diff(k, 2)
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+
+
+def _fill_missing_std(recs: list[HealthRecord], floor: float) -> None:
+    """A HISTORY.csv row without a std: the scatter of that actuator's series (at least ``floor``)."""
+    by: dict[str, list[HealthRecord]] = {}
+    for r in recs:
+        by.setdefault(r.actuator_id, []).append(r)
+    for rs in by.values():
+        for i in range(3):
+            if all(r.std[i] is not None for r in rs):
+                continue
+            est = noise_estimate([r.k[i] for r in rs])
+            fill = max(floor, est) if math.isfinite(est) else floor
+            for r in rs:
+                if r.std[i] is None:
+                    r.std = tuple(fill if j == i else v for j, v in enumerate(r.std))
+
+
+def _check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = None) -> None:
+    """Times must increase strictly per actuator within a batch (and after ``latest``)."""
+    last: dict[str, tuple[float, str]] = {}
+    for where, r in items:
+        prev = last.get(r.actuator_id)
+        if prev is None and latest and r.actuator_id in latest:
+            prev = (latest[r.actuator_id], "the history")
+        if prev is not None:
+            t0, w0 = prev
+            if r.time_h == t0:
+                raise PrognosticsError(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
+                                       f"time_h={r.time_h:g} ({w0})")
+            if r.time_h < t0:
+                raise PrognosticsError(f"{where}: times out of order: actuator {r.actuator_id} test at "
+                                       f"time_h={r.time_h:g} comes after one at {t0:g} ({w0})")
+        last[r.actuator_id] = (r.time_h, where)
+
+
+# ----------------------------------------------------------------------------- SQLite store
+class HistoryStore:
+    """The SQLite health history (created on first use). Use as a context manager."""
+
+    def __init__(self, path: str | Path | None = None, settings: Settings | None = None):
+        self.settings = settings or load_settings()
+        self.path = Path(path) if path is not None else default_history_path(self.settings)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            self.conn = sqlite3.connect(str(self.path), timeout=60.0, isolation_level=None)
+            ver = self.conn.execute("PRAGMA user_version").fetchone()[0]
+        except sqlite3.DatabaseError as e:
+            raise PrognosticsError(f"{self.path}: not a history database ({e})") from None
+        if ver > SCHEMA_VERSION:
+            self.conn.close()
+            raise PrognosticsError(f"{self.path}: history schema version {ver} is newer than this software's "
+                                   f"({SCHEMA_VERSION})")
+        self.conn.execute("PRAGMA journal_mode=WAL")
+        self.conn.execute("PRAGMA synchronous=FULL")
+        self.conn.execute("PRAGMA foreign_keys=ON")
+        if ver == 0:
+            tables = {r[0] for r in self.conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+            if tables - {"schema_version", "tests", "maintenance"}:
+                self.conn.close()
+                raise PrognosticsError(f"{self.path}: an SQLite file that is not a history (tables {sorted(tables)})")
+            self.conn.execute("BEGIN IMMEDIATE")
+            try:
+                for stmt in filter(str.strip, _SCHEMA.split(";")):
+                    self.conn.execute(stmt)
+                self.conn.execute("INSERT INTO schema_version VALUES (?, ?)", (SCHEMA_VERSION, _now()))
+                self.conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+                self.conn.execute("COMMIT")
+            except BaseException:
+                self.conn.execute("ROLLBACK")
+                raise
+
+    def close(self) -> None:
+        self.conn.close()
+
+    def __enter__(self) -> "HistoryStore":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def schema_version(self) -> int:
+        return int(self.conn.execute("PRAGMA user_version").fetchone()[0])
+
+    # ------------------------------------------------------------------ appends
+    def _latest(self) -> dict[str, float]:
+        return {a: t for a, t in self.conn.execute("SELECT actuator_id, MAX(time_h) FROM tests GROUP BY actuator_id")}
+
+    def add_tests(self, records: list[HealthRecord], wheres: list[str] | None = None) -> int:
+        """Append validated records in one transaction; returns the rows added.
+
+        A record whose ``source_hash`` is already stored for the same actuator adds nothing
+        (the same recording twice); for another actuator it is an error.
+        """
+        wheres = wheres or [f"test {i + 1} (actuator {r.actuator_id}, time_h={r.time_h})"
+                            for i, r in enumerate(records)]
+        for w, r in zip(wheres, records):
+            _check_record(r, w)
+            r.source_hash = r.source_hash or r.content_hash()
+        self.conn.execute("BEGIN IMMEDIATE")
+        try:
+            known = {}
+            hashes = [r.source_hash for r in records]
+            for i in range(0, len(hashes), 500):
+                part = hashes[i:i + 500]
+                q = f"SELECT source_hash, actuator_id FROM tests WHERE source_hash IN ({','.join('?' * len(part))})"
+                known.update(dict(self.conn.execute(q, part).fetchall()))
+            new, seen = [], set()
+            for w, r in zip(wheres, records):
+                owner = known.get(r.source_hash)
+                if owner is not None and owner != r.actuator_id:
+                    raise PrognosticsError(f"{w}: this recording is already in the history for actuator {owner}")
+                if owner is not None or r.source_hash in seen:
+                    continue
+                seen.add(r.source_hash)
+                new.append((w, r))
+            _check_order(new, self._latest())
+            q = f"INSERT INTO tests ({','.join(TEST_COLUMNS)}) VALUES ({','.join('?' * len(TEST_COLUMNS))})"
+            self.conn.executemany(q, [r.row() for _, r in new])
+            self.conn.execute("COMMIT")
+        except BaseException:
+            self.conn.execute("ROLLBACK")
+            raise
+        return len(new)
+
+    def add_diagnosis(self, diagnosis, actuator_id: str, time_h: float, usage: float | None = None,
+                      usage_unit: str | None = None, source_path: str | Path | None = None,
+                      response=None, sim_time_s: float | None = None, discrepancy: str | None = None) -> bool:
+        """Append one :class:`eha_health` Diagnosis; True if a row was added.
+
+        The source hash is the sha256 of ``source_path`` (CSV or bag) if given, else of the
+        ``response`` channels, else of the diagnosis result itself.
+        """
+        f = diagnosis.faults
+        k = (f.k_gm, f.k_fsj, f.k_bkl)
+        std = tuple(diagnosis.std[n] for n in ("k_gm", "k_fsj", "k_bkl"))
+        if source_path is not None:
+            if not Path(source_path).is_file():
+                raise PrognosticsError(f"{source_path}: no such recording")
+            h = sha256_file(source_path)
+        elif response is not None:
+            hh = hashlib.sha256()
+            for c in ("t", "command", "position", "velocity", "pressure", "current"):
+                hh.update(np.ascontiguousarray(getattr(response, c), float).tobytes())
+            h = hh.hexdigest()
+        else:
+            h = None
+        rec = HealthRecord(actuator_id, float(time_h), k, std, usage=usage, usage_unit=usage_unit, sim_time_s=sim_time_s,
+                         method=diagnosis.method, cost=float(diagnosis.cost), fit_rms=dict(diagnosis.rms),
+                         discrepancy=discrepancy, warnings=list(diagnosis.warnings),
+                         source_path=str(source_path) if source_path is not None else None, source_hash=h)
+        return self.add_tests([rec], [f"diagnosis for actuator {actuator_id} at time_h={time_h:g}"]) == 1
+
+    def import_csv(self, path: str | Path) -> int:
+        """Append the rows of a HISTORY.csv (each row hashed: importing twice adds nothing)."""
+        recs = read_history_csv(path, self.settings)
+        return self.add_tests(recs, [f"{Path(path).name} row {i + 1}" for i in range(len(recs))])
+
+    def record_repair(self, actuator_id: str, fault: str, time_h: float, action: str = "repair",
+                      note: str | None = None) -> None:
+        """Record a repair or replacement of one fault's part (or ``all``): its trend restarts."""
+        fault = str(fault).lower().removeprefix("k_")
+        if fault not in MAINT_FAULTS:
+            raise PrognosticsError(f"unknown fault {fault!r}: choose gm, fsj, bkl or all")
+        if action not in ACTIONS:
+            raise PrognosticsError(f"unknown maintenance action {action!r}: choose repair or replace")
+        if not isinstance(time_h, (int, float)) or not math.isfinite(time_h) or time_h < 0:
+            raise PrognosticsError(f"repair time_h must be a finite number of hours >= 0, got {time_h!r}")
+        latest = self._latest()
+        if actuator_id not in latest:
+            raise PrognosticsError(f"unknown actuator {actuator_id!r}: it has no tests in {self.path}")
+        if time_h > latest[actuator_id]:
+            raise PrognosticsError(f"repair at time_h={time_h:g} is in the future: the latest test of "
+                                   f"{actuator_id} is at {latest[actuator_id]:g} h (append the post-repair test first)")
+        self.conn.execute("BEGIN IMMEDIATE")
+        try:
+            self.conn.execute("INSERT INTO maintenance (actuator_id, time_h, fault, action, wall_time_utc, note) "
+                              "VALUES (?, ?, ?, ?, ?, ?)", (actuator_id, float(time_h), fault, action, _now(), note))
+            self.conn.execute("COMMIT")
+        except sqlite3.IntegrityError:
+            self.conn.execute("ROLLBACK")
+            raise PrognosticsError(f"duplicate maintenance: {actuator_id} {fault} already recorded at "
+                                   f"time_h={time_h:g}") from None
+        except BaseException:
+            self.conn.execute("ROLLBACK")
+            raise
+
+    # ------------------------------------------------------------------ reads
+    def actuator_ids(self) -> list[str]:
+        return [r[0] for r in self.conn.execute("SELECT DISTINCT actuator_id FROM tests ORDER BY actuator_id")]
+
+    def _require(self, actuator_id: str | None) -> None:
+        if actuator_id is not None and actuator_id not in self.actuator_ids():
+            raise PrognosticsError(f"unknown actuator {actuator_id!r} in {self.path}")
+
+    def list_tests(self, actuator_id: str | None = None) -> list[dict]:
+        """Stored tests (dicts with the schema's columns), by actuator and time."""
+        self._require(actuator_id)
+        q = f"SELECT id, {','.join(TEST_COLUMNS)} FROM tests"
+        args: tuple = ()
+        if actuator_id is not None:
+            q, args = q + " WHERE actuator_id = ?", (actuator_id,)
+        rows = self.conn.execute(q + " ORDER BY actuator_id, time_h", args).fetchall()
+        out = []
+        for row in rows:
+            d = dict(zip(("id",) + TEST_COLUMNS, row))
+            for c in ("fit_rms", "warnings"):
+                d[c] = json.loads(d[c]) if d[c] else None
+            out.append(d)
+        return out
+
+    def list_maintenance(self, actuator_id: str | None = None) -> list[dict]:
+        self._require(actuator_id)
+        q = "SELECT actuator_id, time_h, fault, action, wall_time_utc, note FROM maintenance"
+        args: tuple = ()
+        if actuator_id is not None:
+            q, args = q + " WHERE actuator_id = ?", (actuator_id,)
+        cols = ("actuator_id", "time_h", "fault", "action", "wall_time_utc", "note")
+        return [dict(zip(cols, r)) for r in self.conn.execute(q + " ORDER BY actuator_id, time_h", args)]
+
+    def history(self) -> History:
+        """All tests and maintenance as arrays for the prognostics."""
+        q = "SELECT actuator_id, time_h, k_gm, k_fsj, k_bkl, std_gm, std_fsj, std_bkl, usage FROM tests"
+        recs = [HealthRecord(a, t, (g, f, b), (sg, sf, sb), usage=u) for a, t, g, f, b, sg, sf, sb, u in
+                self.conn.execute(q)]
+        reps = list(self.conn.execute("SELECT actuator_id, time_h, fault, action FROM maintenance"))
+        return _history_from_records(recs, reps)
+
+
+def as_history(obj, settings: Settings | None = None) -> History:
+    """A :class:`History` from a History, a HistoryStore, or a path (``.csv``: HISTORY.csv, else SQLite)."""
+    if isinstance(obj, History):
+        return obj
+    if isinstance(obj, HistoryStore):
+        return obj.history()
+    path = Path(obj)
+    if path.suffix.lower() == ".csv":
+        return _history_from_records(read_history_csv(path, settings), [])
+    if not path.is_file():
+        raise PrognosticsError(f"{path}: no such history file")
+    with HistoryStore(path, settings) as st:
+        return st.history()
+
+
+# module-level conveniences for the CLI: open, act, close
+def add_diagnosis(db: str | Path | None, diagnosis, actuator_id: str, time_h: float, **kw) -> bool:
+    with HistoryStore(db) as st:
+        return st.add_diagnosis(diagnosis, actuator_id, time_h, **kw)
+
+
+def import_csv(db: str | Path | None, path: str | Path) -> int:
+    with HistoryStore(db) as st:
+        return st.import_csv(path)
+
+
+def record_repair(db: str | Path | None, actuator_id: str, fault: str, time_h: float, **kw) -> None:
+    with HistoryStore(db) as st:
+        st.record_repair(actuator_id, fault, time_h, **kw)
+
+
+def list_tests(db: str | Path | None, actuator_id: str | None = None) -> list[dict]:
+    with HistoryStore(db) as st:
+        return st.list_tests(actuator_id)

@@ -1,0 +1,76 @@
+"""Validation harness: the simulated fleet, cached real diagnoses, and one tiny end-to-end bench."""
+import json
+
+import numpy as np
+import pytest
+
+from eha_health.prognostics.config import load_settings
+from eha_health.prognostics.harness import FINE_DT_H, bench_rul, diagnose_test, make_fleet
+
+THR = {"gm": 0.8, "fsj": 0.9, "bkl": 0.85}
+
+
+def test_fleet_is_seeded_and_its_eol_is_the_first_crossing():
+    b = load_settings(overrides={"bench": {"n_units": 8}}).bench
+    f1, f2 = make_fleet(b, THR), make_fleet(b, THR)
+    for u, v in zip(f1, f2):
+        np.testing.assert_array_equal(u.test_h, v.test_h)
+        np.testing.assert_array_equal(u.true_k, v.true_k)
+    # unit i does not depend on the fleet size
+    small = make_fleet(load_settings(overrides={"bench": {"n_units": 3}}).bench, THR)
+    np.testing.assert_array_equal(small[2].true_k, f1[2].true_k)
+    other = make_fleet(load_settings(overrides={"bench": {"n_units": 8, "seed": 7}}).bench, THR)
+    assert not np.array_equal(other[0].true_k, f1[0].true_k)
+    laws = set()
+    for u in f1:
+        assert u.test_h[-1] < u.eol_h and np.all(np.diff(u.test_h) > 0)
+        for p in u.paths:
+            laws.add(p.law)
+            assert np.all(np.diff(p.k) >= 0)                       # wear is monotone
+            assert np.all(p.k[p.t_h < p.onset_h - FINE_DT_H] == 0)  # healthy before onset
+        first = min(p.t_h[np.argmax(p.k >= THR[p.fault])] for p in u.paths if np.any(p.k >= THR[p.fault]))
+        assert abs(first - u.eol_h) <= FINE_DT_H
+        assert np.all(u.true_k < 1.5)
+    assert laws == {"linear", "exponential", "power", "two_phase"}
+
+
+def test_gamma_process_mean_follows_the_law():
+    b = load_settings(overrides={"bench": {"n_units": 30, "second_fault_probability": 0.0}}).bench
+    fleet = make_fleet(b, THR)
+    # at the mean-path life L the process is at its threshold on average (Var = nu thr)
+    ratios = []
+    for u in fleet:
+        p = u.paths[0]
+        ratios.append(np.interp(p.onset_h + p.life_h, p.t_h, p.k) / THR[p.fault])
+    se = np.sqrt(b.volatility[1] / 0.8) / np.sqrt(len(ratios))
+    assert abs(np.mean(ratios) - 1.0) < 4 * se
+
+
+def test_diagnoses_are_real_and_cached(tmp_path):
+    k = np.array([0.3, 0.0, 0.2])
+    d1 = diagnose_test(k, 123, "deterministic", tmp_path)
+    assert d1["cached"] is False
+    assert np.allclose(d1["k"], k, atol=0.02) and all(s > 0 for s in d1["std"])
+    files = list(tmp_path.rglob("*.json"))
+    assert len(files) == 1 and json.loads(files[0].read_text())["inputs"]["noise_seed"] == 123
+    d2 = diagnose_test(k, 123, "deterministic", tmp_path)
+    assert d2["cached"] is True and d2["k"] == d1["k"]
+    d3 = diagnose_test(k, 124, "deterministic", tmp_path)      # another noise seed: a new diagnosis
+    assert d3["cached"] is False and d3["k"] != d1["k"]
+
+
+def test_bench_end_to_end_tiny(tmp_path):
+    """One short-lived unit, every test diagnosed for real, scored, plotted; a rerun is all cached."""
+    s = load_settings(overrides={"bench": {"n_units": 1, "life_median_h": 330.0, "life_spread": 0.0,
+                                           "healthy_fraction": [0.05, 0.06], "second_fault_probability": 0.0,
+                                           "test_interval_h": 40.0}})
+    lines = []
+    r = bench_rul(s, cache_dir=tmp_path / "cache", plot=tmp_path / "b.png", progress=lines.append)
+    assert r["points"] >= 3 and r["diagnoses"]["cached"] == 0
+    assert any(line.startswith("diagnosis 1/") for line in lines)
+    assert (tmp_path / "b.png").read_bytes()[:4] == b"\x89PNG"
+    m = r["model"]
+    assert 0.0 <= m["coverage90"] <= 1.0 and set(r["targets"]) and "ratios_model_to_naive" in r
+    r2 = bench_rul(s, cache_dir=tmp_path / "cache", plot=None, progress=None)
+    assert r2["diagnoses"]["cached"] == r2["diagnoses"]["diagnoses"]
+    assert r2["model"] == r["model"] and r2["naive"] == r["naive"]

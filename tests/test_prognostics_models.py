@@ -1,0 +1,161 @@
+"""Degradation models: the hand-written filter against filterpy and against direct least squares,
+the inverse-Gaussian sampler against scipy, the online tracker against the batch fit, and
+calibration of the RUL intervals on simulated degradation with known truth."""
+import math
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from eha_health.prognostics.config import load_settings
+from eha_health.prognostics.degradation import (NX, Grid, Series, fit_model, kf_init, kf_step, log_ml,
+                                                model_grids, shape_g, shape_g_inv, state_cov)
+from eha_health.prognostics.online import OnlineFault
+from eha_health.prognostics.rul import (FaultPrediction, inverse_gaussian, predict_series,
+                                        weighted_quantiles)
+
+
+def one_cell(kind=0, b=1.0, eta=0.0, sigma=0.0, rate=0.0):
+    return Grid("t", np.array([kind]), np.array([b]), np.array([eta]), np.array([sigma]), np.array([rate]), 3,
+                np.zeros(1))
+
+
+def test_filter_matches_filterpy_step_by_step():
+    from filterpy.kalman import KalmanFilter
+    rng = np.random.default_rng(0)
+    t = np.sort(rng.uniform(0, 1, 9))
+    t[0] = 0.0
+    g = t ** 1.5
+    y = 0.05 + 0.4 * g + rng.normal(0, 0.01, len(t))
+    r = rng.uniform(0.5e-4, 2e-4, len(t))
+    sigma2, q = 0.02 ** 2, 0.1 ** 2
+    st = kf_init(np.array([y[0]]), np.array([r[0]]), (1,))
+    kf = KalmanFilter(dim_x=NX, dim_z=1)
+    kf.x = np.array([y[0], 0.0, 0.0, 0.0])
+    kf.P = np.diag([r[0], 1e4, 0.0, 0.0])
+    for k in range(1, len(t)):
+        dg = g[k] - g[k - 1]
+        kf.F = np.eye(NX)
+        kf.F[2, 3] = dg
+        kf.Q = np.diag([0.0, 0.0, sigma2 * dg, q * dg])
+        kf.H = np.array([[1.0, g[k], 1.0, 0.0]])
+        kf.R = np.array([[r[k]]])
+        kf.predict()
+        kf.update(np.array([y[k]]))
+        kf_step(st, np.array([g[k - 1]]), np.array([g[k]]), np.array([y[k]]), np.array([r[k]]), sigma2, q)
+        np.testing.assert_allclose(st[:NX, 0], kf.x, rtol=1e-7, atol=1e-10)
+        np.testing.assert_allclose(state_cov(st[:, 0]), kf.P, rtol=1e-6, atol=1e-12)
+
+
+def test_profile_likelihood_equals_weighted_least_squares():
+    """log L_ML of a path model (sigma = 0) is the Gaussian log-likelihood at the WLS estimate."""
+    rng = np.random.default_rng(1)
+    n = 12
+    t = np.linspace(0, 1, n)
+    s = rng.uniform(0.005, 0.02, n)
+    for kind, b in ((0, 1.0), (1, 2.0), (2, 1.7)):
+        g = shape_g(kind, t, b)
+        y = 0.02 + 0.5 * g + rng.normal(0, s)
+        X = np.stack([np.ones(n), g], 1)
+        W = 1 / s ** 2
+        beta = np.linalg.solve(X.T @ (W[:, None] * X), X.T @ (W * y))
+        res = y - X @ beta
+        ll = -0.5 * np.sum(np.log(2 * math.pi * s ** 2) + res ** 2 / s ** 2)
+        grid = one_cell(kind, b)
+        st = kf_init(np.array([y[0]]), np.array([s[0] ** 2]), (1, 1))
+        for k in range(1, n):
+            kf_step(st, np.array([[g[k - 1]]]), np.array([[g[k]]]), np.array([[y[k]]]), np.array([[s[k] ** 2]]),
+                    0.0, 0.0)
+        assert log_ml(st)[0, 0] == pytest.approx(ll, abs=1e-4)
+        np.testing.assert_allclose(st[:2, 0, 0], beta, rtol=1e-5, atol=1e-8)
+        fit = fit_model([Series(t, y, s, 1.0)], grid)
+        assert fit.max_log_ml[0] == pytest.approx(ll, abs=1e-4)
+
+
+def test_shape_inverse():
+    t = np.linspace(0, 3, 31)
+    for kind, b in ((0, 1.0), (1, 0.05), (1, 6.0), (2, 0.5), (2, 3.0)):
+        np.testing.assert_allclose(shape_g_inv(kind, shape_g(kind, t, b), b), t, atol=1e-9)
+        assert shape_g(kind, 1.0, b) == pytest.approx(1.0)
+
+
+def test_inverse_gaussian_sampler_matches_scipy():
+    m = 50000
+    for seed, (mean, shape) in enumerate(((1.0, 0.5), (2.0, 50.0), (0.3, 3.0))):
+        rng = np.random.default_rng(seed)
+        x = inverse_gaussian(np.full(m, mean), np.full(m, shape), rng.standard_normal(m), rng.random(m))
+        ks = stats.kstest(x, stats.invgauss(mean / shape, scale=shape).cdf)
+        assert ks.pvalue > 1e-3, (mean, shape, ks)
+
+
+def test_weighted_quantiles():
+    x = np.array([3.0, 1.0, np.inf, 2.0])
+    np.testing.assert_array_equal(weighted_quantiles(x, None, (0.25, 0.5, 1.0)), [1.0, 2.0, np.inf])
+    w = np.array([0.0, 0.0, 0.0, 1.0])
+    np.testing.assert_array_equal(weighted_quantiles(x, w, (0.05, 0.95)), [2.0, 2.0])
+
+
+def test_online_updates_equal_the_batch_fit():
+    s = load_settings()
+    rng = np.random.default_rng(3)
+    tau = np.cumsum(np.r_[0.0, rng.uniform(40, 60, 9)])
+    y = 0.0008 * tau + np.cumsum(rng.normal(0, 0.005, len(tau)))
+    sd = np.full(len(tau), 0.002)
+    span = tau[-1] * 1.2       # below the regrid limit: no refit along the way
+    on = OnlineFault(tau[:3], y[:3], sd[:3], span_h=span, settings=s)
+    for i in range(3, len(tau)):
+        on.update(tau[i], y[i], sd[i])
+    assert on.regrids == 0
+    fits, w = on.fit()
+    grids = model_grids(s.models)
+    for f in fits:
+        b = fit_model([Series(tau, y, sd, span)], grids[f.model])
+        np.testing.assert_allclose(f.log_evidence, b.log_evidence, rtol=1e-9)
+        np.testing.assert_array_equal(f.cell, b.cell)
+        np.testing.assert_allclose(f.mean, b.mean, rtol=1e-7, atol=1e-12)
+    # past the regrid limit the tracker refits with the new span
+    on.update(tau[-1] * 3, y[-1] + 0.2, 0.002)
+    assert on.regrids == 1 and on.span_h == pytest.approx(tau[-1] * 3)
+
+
+def simulate_fleet(rng, law, n_series, noise, process_nu=None, thr=0.8):
+    """Series of a degradation law (gamma process when process_nu) and their true RUL."""
+    preds, truths = [], []
+    while len(preds) < n_series:
+        life = 1000 * math.exp(0.3 * rng.standard_normal())
+        t = np.arange(0, 4 * life, 1.0)
+        x = t / life
+        mu = thr * {"linear": x, "exponential": np.expm1(2 * x) / np.expm1(2), "power": x ** 2}[law]
+        if process_nu:
+            k = np.concatenate([[0.0], np.cumsum(rng.gamma(np.diff(mu) / process_nu, process_nu))])
+        else:
+            k = mu
+        eol = t[np.argmax(k >= thr)]
+        n = int(rng.integers(5, 18))
+        tt = np.arange(n) * 50.0
+        if tt[-1] >= eol or np.interp(tt[-1], t, k) < 0.05:
+            continue
+        y = np.clip(np.interp(tt, t, k) + rng.normal(0, noise, n), 0, 1.5)
+        p = FaultPrediction(None, None, threshold=thr, n_tests=n, n_points=n)
+        p.series = Series(tt, y, np.full(n, noise), tt[-1])
+        preds.append(p)
+        truths.append(eol - tt[-1])
+    return preds, np.array(truths)
+
+
+@pytest.mark.parametrize("law, nu", [
+    ("linear", None), ("exponential", None), ("linear", 0.002),
+    pytest.param("power", 0.002, marks=pytest.mark.xfail(
+        strict=True, reason="known shortfall: 77 % coverage, power-law gamma process seen through 5-11 "
+                            "points (the deterministic power path wins the evidence and is too sure)")),
+])
+def test_rul_intervals_are_calibrated_on_known_truth(law, nu):
+    """90 % intervals hold the true RUL about 90 % of the time (independent series, fixed seed)."""
+    s = load_settings()
+    preds, truth = simulate_fleet(np.random.default_rng(11), law, 150, 0.005, nu)
+    predict_series(preds, np.full(len(preds), 0.8), 0, s)
+    q = np.array([p.quantiles() for p in preds])
+    cover = np.mean((q[:, 0] <= truth) & (truth <= q[:, 2]))
+    assert 0.80 <= cover <= 0.99, cover
+    rel = np.median(np.abs(q[:, 1] - truth) / truth)
+    assert rel < 0.25, rel

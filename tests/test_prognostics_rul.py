@@ -1,0 +1,195 @@
+"""prognose: the JSON object of issue 16, its rules (few tests, repairs, fleet prior), bad input,
+the plot, physics thresholds, settings and metrics."""
+import csv
+import json
+import math
+
+import numpy as np
+import pytest
+
+from eha_health.prognostics import metrics as M
+from eha_health.prognostics.config import PrognosticsError, load_settings
+from eha_health.prognostics.rul import plot_prognosis, prognose
+from eha_health.prognostics.store import HistoryStore, HealthRecord
+from eha_health.prognostics.thresholds import METRICS, failure_thresholds
+
+THR = {"gm": 0.8, "fsj": 0.9, "bkl": 0.85}     # explicit thresholds: these tests need no simulation
+F_KEYS = {"model", "rul_median_h", "rul_p05_h", "rul_p95_h", "p_fail_next", "threshold", "n_tests"}
+
+
+def write_history(path, n_act=5, n_tests=14, seed=0, rate_gm=0.001, noise=0.004, extra=None):
+    rng = np.random.default_rng(seed)
+    rows = []
+    for a in range(n_act):
+        rate = rate_gm * math.exp(0.2 * rng.standard_normal())
+        for i in range(n_tests):
+            t = 50.0 * i
+            rows.append({"actuator_id": f"A{a}", "time_h": t,
+                         "k_gm": min(1.5, max(0.0, rate * max(t - 60, 0) + rng.normal(0, noise))),
+                         "k_fsj": 0.0, "k_bkl": 0.0005 * i, "std_gm": noise, "std_fsj": 0.001, "std_bkl": 0.001,
+                         "usage": 2.0 * t})
+    rows += extra or []
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, rows[0].keys())
+        w.writeheader()
+        w.writerows(rows)
+    return rows
+
+
+def test_json_object_of_the_issue(tmp_path):
+    h = tmp_path / "h.csv"
+    write_history(h)
+    obj = prognose(h, thresholds=THR, next_check_h=100.0)
+    assert set(obj) == {"actuators"}
+    assert json.loads(json.dumps(obj)) == obj           # plain JSON: no NaN, no numpy types
+    a = obj["actuators"]["A0"]
+    assert set(a) == {"faults", "overall"} and set(a["faults"]) == {"gm", "fsj", "bkl"}
+    for f in list(a["faults"].values()) + [a["overall"]]:
+        assert F_KEYS <= set(f)
+        if f["rul_median_h"] is None:
+            assert f["reason"]
+    gm = a["faults"]["gm"]
+    assert gm["rul_p05_h"] <= gm["rul_median_h"] <= gm["rul_p95_h"]
+    assert gm["threshold"] == THR["gm"] and gm["n_tests"] == 14
+    assert 0.0 <= gm["p_fail_next"] <= 1.0
+    assert gm["rul_median_usage"] == pytest.approx(2.0 * gm["rul_median_h"], rel=1e-3)
+    # fsj never moves: no RUL, and the reason says so; overall is the gm RUL and names it
+    assert a["faults"]["fsj"]["rul_median_h"] is None and "no degradation" in a["faults"]["fsj"]["reason"]
+    assert a["overall"]["dominant_fault"] == "gm"
+    assert a["overall"]["rul_median_h"] == gm["rul_median_h"]
+
+
+def test_rul_follows_the_trend_and_p_fail_grows_with_the_interval(tmp_path):
+    h = tmp_path / "h.csv"
+    write_history(h, n_act=1, n_tests=12, noise=0.002)
+    short = prognose(h, thresholds=THR, next_check_h=10.0)["actuators"]["A0"]["faults"]["gm"]
+    long = prognose(h, thresholds=THR, next_check_h=500.0)["actuators"]["A0"]["faults"]["gm"]
+    expected = (THR["gm"] / 0.001 + 60.0) - 550.0      # the linear law reaches 0.8 at 860 h
+    assert short["rul_p05_h"] <= expected * 1.1 and short["rul_p95_h"] >= expected * 0.9
+    assert short["p_fail_next"] <= long["p_fail_next"]
+    assert short["rul_median_h"] == long["rul_median_h"]
+
+
+def test_same_seed_same_result_and_independent_of_other_actuators(tmp_path):
+    h1, h2 = tmp_path / "a.csv", tmp_path / "b.csv"
+    rows = write_history(h1, n_act=2)
+    write_history(h2, n_act=2, extra=[{**rows[0], "actuator_id": "Z", "k_gm": 0.0}])
+    o1 = prognose(h1, thresholds=THR)
+    assert prognose(h1, thresholds=THR) == o1
+    # a new actuator without a trend changes nobody's result (no fleet prior in play: >= 6 points each)
+    assert prognose(h2, thresholds=THR)["actuators"]["A1"] == o1["actuators"]["A1"]
+
+
+def test_few_tests_and_repair_restart_the_trend(tmp_path):
+    db = tmp_path / "h.sqlite"
+    with HistoryStore(db) as st:
+        recs = [HealthRecord("R", 50.0 * i, (min(0.002 * 50 * i, 1.5), 0.0, 0.0), (0.002, 0.001, 0.001))
+                for i in range(8)]
+        st.add_tests(recs)
+        st.add_tests([HealthRecord("R", 400.0, (0.0, 0.0, 0.0), (0.002, 0.001, 0.001))])
+        st.record_repair("R", "gm", 400.0)
+        st.add_tests([HealthRecord("R", 450.0, (0.02, 0.0, 0.0), (0.002, 0.001, 0.001))])
+    gm = prognose(db, thresholds=THR)["actuators"]["R"]["faults"]["gm"]
+    assert gm["rul_median_h"] is None and gm["n_tests"] == 2
+    assert "2 test(s) since the last repair" in gm["reason"] and "fewer than 3" in gm["reason"]
+    # before the repair the same actuator had a RUL
+    with HistoryStore(tmp_path / "before.sqlite") as st:
+        st.add_tests(recs)
+    assert prognose(tmp_path / "before.sqlite", thresholds=THR)["actuators"]["R"]["faults"]["gm"]["rul_median_h"] > 0
+
+
+def test_fleet_prior_for_an_actuator_with_few_points(tmp_path):
+    h = tmp_path / "h.csv"
+    rows = write_history(h, n_act=6, n_tests=14, seed=4)
+    young = [{**r, "actuator_id": "Y"} for r in rows[:4]]          # onset at 60 h, 3 points since
+    write_history(h, n_act=6, n_tests=14, seed=4, extra=young)
+    y = prognose(h, thresholds=THR)["actuators"]["Y"]["faults"]["gm"]
+    assert y["fleet_prior"] is True and y["rul_median_h"] is not None
+    old = prognose(h, thresholds=THR)["actuators"]["A1"]["faults"]["gm"]
+    assert old["fleet_prior"] is False
+    s = load_settings(overrides={"fleet": {"min_members": 100}})
+    y2 = prognose(h, thresholds=THR, settings=s)["actuators"]["Y"]["faults"]["gm"]
+    assert y2["fleet_prior"] is False
+    # the prior narrows the interval of the young actuator
+    assert (y["rul_p95_h"] - y["rul_p05_h"]) < (y2["rul_p95_h"] - y2["rul_p05_h"])
+
+
+def test_bad_input_one_line(tmp_path):
+    h = tmp_path / "h.csv"
+    write_history(h, n_act=1)
+    cases = [
+        (lambda: prognose(h, actuator="nope", thresholds=THR), "unknown actuator 'nope'"),
+        (lambda: prognose(h, next_check_h=-1, thresholds=THR), "next-check"),
+        (lambda: prognose(tmp_path / "missing.sqlite", thresholds=THR), "no such history"),
+    ]
+    empty = tmp_path / "empty.sqlite"
+    HistoryStore(empty).close()
+    cases.append((lambda: prognose(empty, thresholds=THR), "empty"))
+    for call, message in cases:
+        with pytest.raises(PrognosticsError, match=message) as e:
+            call()
+        assert "\n" not in str(e.value)
+
+
+def test_plot_writes_a_png(tmp_path):
+    h = tmp_path / "h.csv"
+    write_history(h, n_act=2)
+    png = tmp_path / "p.png"
+    obj = plot_prognosis(h, png, "A1", settings=load_settings(overrides={"requirements": []}))
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert obj["actuators"]["A1"]["faults"]["gm"]["threshold"] == 1.0   # no requirement: K = 1
+
+
+def test_thresholds_from_the_physics():
+    from eha_health import FDISequence, Faults, simulate
+    s = load_settings()
+    th = failure_thresholds(s)
+    seq = FDISequence()
+    for f, t in th.items():
+        if t.requirement is None:
+            assert t.k == s.thresholds.default
+            continue
+        assert 0 < t.k < s.thresholds.search_max
+        fn = METRICS[t.metric][1]
+        above = fn(simulate(faults=Faults(**{f"k_{f}": t.k + 2 * s.thresholds.tolerance})), seq)
+        below = fn(simulate(faults=Faults(**{f"k_{f}": t.k - 2 * s.thresholds.tolerance})), seq)
+        assert below <= t.limit < above, (f, below, t.limit, above)
+    none = failure_thresholds(load_settings(overrides={"requirements": []}))
+    assert {f: t.k for f, t in none.items()} == {"gm": 1.0, "fsj": 1.0, "bkl": 1.0}
+
+
+def test_settings_errors_name_the_problem(tmp_path):
+    with pytest.raises(PrognosticsError, match="prognosis.samples"):
+        load_settings(overrides={"prognosis": {"samples": "many"}})
+    with pytest.raises(PrognosticsError, match="unknown setting"):
+        load_settings(overrides={"prognosis": {"sample": 10}})
+    with pytest.raises(PrognosticsError, match="unknown metric"):
+        load_settings(overrides={"requirements": [{"name": "x", "metric": "speed", "limit": 1.0}]})
+    p = load_settings().prognosis
+    assert p.warn_p_fail <= p.error_p_fail and p.next_check_h > 0
+
+
+def test_metrics_by_their_definitions():
+    eol = 1000.0
+    t = np.array([200.0, 400.0, 600.0, 800.0])
+    truth = eol - t
+    perfect = truth.copy()
+    assert M.alpha_lambda(t, perfect, eol, 0.2, 0.5) is True
+    late = truth * 1.5
+    assert M.alpha_lambda(t, late, eol, 0.2, 0.5) is False
+    # lambda 0.5: t_lambda = 600 h, the prediction then in force is the one at 600 h
+    mixed = np.array([truth[0] * 2, truth[1] * 2, truth[2], truth[3] * 3])
+    assert M.alpha_lambda(t, mixed, eol, 0.2, 0.5) is True
+    assert M.prognostic_horizon(t, perfect, eol, 0.2) == eol - 200.0
+    assert M.prognostic_horizon(t, mixed, eol, 0.2) == eol - 600.0
+    assert M.prognostic_horizon(t, mixed, eol, 0.2, stay=True) == 0.0
+    np.testing.assert_allclose(M.relative_accuracy(perfect, truth), 1.0)
+    assert M.cumulative_relative_accuracy(late, truth) == pytest.approx(0.5)
+    assert M.convergence(t, perfect, eol) == pytest.approx(0.0)
+    assert M.convergence(t, late, eol) > 0
+    assert M.coverage(truth - 1, truth + 1, truth) == 1.0
+    assert np.all(M.nasa_score(perfect, truth, eol) == 0)
+    s_late, s_early = M.nasa_score(truth + 50, truth, eol), M.nasa_score(truth - 50, truth, eol)
+    assert np.all(s_late > s_early)
+    assert M.naive_rul(np.arange(5.0), 0.1 * np.arange(5.0), 1.0, 5) == pytest.approx(6.0)
+    assert M.naive_rul(np.arange(5.0), np.zeros(5), 1.0, 5) == math.inf

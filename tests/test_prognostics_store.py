@@ -1,0 +1,212 @@
+"""Health history store: a real SQLite file, real transactions, a real writer killed mid-append."""
+import json
+import os
+import signal
+import sqlite3
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eha_health.prognostics.config import PrognosticsError, load_settings
+from eha_health.prognostics.store import SCHEMA_VERSION, HistoryStore, HealthRecord, read_history_csv
+
+SRC = str(Path(__file__).resolve().parents[1] / "src")
+
+
+def rec(a="A1", t=0.0, k=(0.1, 0.2, 0.3), std=(0.001, 0.002, 0.003), **kw):
+    return HealthRecord(a, t, k, std, **kw)
+
+
+def snapshot(path):
+    con = sqlite3.connect(path)
+    try:
+        return (con.execute("SELECT * FROM tests ORDER BY id").fetchall(),
+                con.execute("SELECT * FROM maintenance ORDER BY id").fetchall())
+    finally:
+        con.close()
+
+
+def test_schema_is_versioned_and_wal(tmp_path):
+    db = tmp_path / "h.sqlite"
+    with HistoryStore(db) as st:
+        assert st.schema_version == SCHEMA_VERSION
+    con = sqlite3.connect(db)
+    assert con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    assert con.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
+    assert con.execute("SELECT version FROM schema_version").fetchall() == [(SCHEMA_VERSION,)]
+    con.execute(f"PRAGMA user_version = {SCHEMA_VERSION + 1}")
+    con.commit()
+    con.close()
+    with pytest.raises(PrognosticsError, match="newer"):
+        HistoryStore(db)
+
+
+def test_append_list_and_same_recording_twice(tmp_path):
+    db = tmp_path / "h.sqlite"
+    run = tmp_path / "run.csv"
+    run.write_text("t,position\n0,1\n")
+    from eha_health.prognostics.store import sha256_file
+    with HistoryStore(db) as st:
+        assert st.add_tests([rec(t=0.0, source_path=str(run), source_hash=sha256_file(run), usage=10.0)]) == 1
+        assert st.add_tests([rec(t=50.0, k=(0.2, 0.2, 0.3))]) == 1
+        # the same file again (by content hash), and the same diagnosis inputs again: no row
+        assert st.add_tests([rec(t=100.0, source_hash=sha256_file(run))]) == 0
+        assert st.add_tests([rec(t=50.0, k=(0.2, 0.2, 0.3))]) == 0
+        rows = st.list_tests("A1")
+    assert [r["time_h"] for r in rows] == [0.0, 50.0]
+    assert rows[0]["usage"] == 10.0 and rows[0]["std_bkl"] == 0.003 and rows[0]["software_version"]
+
+
+@pytest.mark.parametrize("bad, message", [
+    ([rec(t=10.0), rec(t=5.0)], "times out of order"),
+    ([rec(t=10.0), rec(t=10.0, k=(0.2, 0.2, 0.2))], "duplicate row"),
+    ([rec(t=10.0), rec(t=20.0, std=(float("nan"), 0.1, 0.1))], "std_gm"),
+    ([rec(t=10.0), rec(t=20.0, std=(0.1, -0.1, 0.1))], "negative"),
+    ([rec(t=10.0), rec(t=20.0, k=(0.1, 1.6, 0.1))], r"k_fsj=1.6 outside \[0, 1.5\]"),
+    ([rec(t=10.0), rec(t=20.0, k=(-0.01, 0.1, 0.1))], "outside"),
+    ([rec(t=1.0)], "times out of order"),     # before the latest stored test
+])
+def test_bad_batches_leave_the_store_unchanged(tmp_path, bad, message):
+    db = tmp_path / "h.sqlite"
+    with HistoryStore(db) as st:
+        st.add_tests([rec(t=2.0, k=(0.0, 0.0, 0.0))])
+    before = snapshot(db)
+    with HistoryStore(db) as st:
+        with pytest.raises(PrognosticsError, match=message) as e:
+            st.add_tests(bad)
+    assert "\n" not in str(e.value)
+    assert isinstance(e.value, ValueError)
+    assert snapshot(db) == before
+
+
+def test_repair_rules(tmp_path):
+    db = tmp_path / "h.sqlite"
+    with HistoryStore(db) as st:
+        st.add_tests([rec(t=0.0), rec(t=100.0)])
+        before = snapshot(db)
+        with pytest.raises(PrognosticsError, match="unknown actuator 'B'"):
+            st.record_repair("B", "gm", 50.0)
+        with pytest.raises(PrognosticsError, match="in the future"):
+            st.record_repair("A1", "gm", 150.0)
+        with pytest.raises(PrognosticsError, match="unknown fault"):
+            st.record_repair("A1", "valve", 50.0)
+        assert snapshot(db) == before
+        st.record_repair("A1", "gm", 100.0)
+        st.record_repair("A1", "all", 50.0, action="replace")
+        with pytest.raises(PrognosticsError, match="duplicate maintenance"):
+            st.record_repair("A1", "gm", 100.0)
+        h = st.history().actuators["A1"]
+        assert st.list_maintenance("A1")[0]["fault"] == "all"
+    assert h.since_repair("gm").tolist() == [False, True]      # at or after the gm repair at 100 h
+    assert h.since_repair("fsj").tolist() == [False, True]     # after the 'all' replacement at 50 h
+
+
+def test_missing_std_is_the_series_scatter(tmp_path):
+    rng = np.random.default_rng(5)
+    t = np.arange(30) * 50.0
+    k = np.clip(0.0008 * t + rng.normal(0, 0.02, len(t)), 0, 1.5)
+    p = tmp_path / "h.csv"
+    p.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl\n" + "".join(f"A,{a},{b},0,0\n" for a, b in zip(t, k)))
+    recs = read_history_csv(p)
+    assert 0.7 * 0.02 < recs[0].std[0] < 1.3 * 0.02
+    assert recs[0].std[1] == load_settings().history.default_std      # a flat series: the floor
+
+
+def test_import_csv_twice_and_bad_csv(tmp_path):
+    db = tmp_path / "h.sqlite"
+    good = tmp_path / "hist.csv"
+    good.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl,std_gm\nA,0,0,0,0,0.001\nA,50,0.1,0,0,0.001\n"
+                    "B,0,0.2,0.1,0,\n")
+    with HistoryStore(db) as st:
+        assert st.import_csv(good) == 3
+        assert st.import_csv(good) == 0
+        # a missing std is the documented default
+        b = st.list_tests("B")[0]
+        assert b["std_gm"] == st.settings.history.default_std
+    cases = {
+        "actuator_id,time_h,k_gm,k_fsj\nA,0,0,0\n": "missing column",
+        "actuator_id,time_h,k_gm,k_fsj,k_bkl\nA,0,0,0,x\n": "k_bkl 'x' is not a number",
+        "actuator_id,time_h,k_gm,k_fsj,k_bkl\nA,50,0,0,0\nA,10,0,0,0\n": "line 3: times out of order",
+        "actuator_id,time_h,k_gm,k_fsj,k_bkl\nA,50,0,0,0\nA,50,0,0,0\n": "duplicate row",
+        "actuator_id,time_h,k_gm,k_fsj,k_bkl,std_gm\nA,0,0,0,0,nan\n": "std_gm",
+        "actuator_id,time_h,k_gm,k_fsj,k_bkl\n": "empty",
+    }
+    for text, message in cases.items():
+        bad = tmp_path / "bad.csv"
+        bad.write_text(text)
+        with pytest.raises(PrognosticsError, match=message):
+            read_history_csv(bad)
+
+
+WRITER = textwrap.dedent("""
+    import sys
+    sys.path.insert(0, {src!r})
+    from eha_health.prognostics.store import HistoryStore, HealthRecord
+    batch = int(sys.argv[2])
+    with HistoryStore(sys.argv[1]) as st:
+        t = 0.0
+        for i in range(100000):
+            recs = [HealthRecord("W", t + j, (0.1, 0.2, 0.3), (0.01, 0.01, 0.01), method="stress",
+                               fit_rms={{"position": 1e-6}}, warnings=["w"] * 20) for j in range(batch)]
+            st.add_tests(recs)
+            t += batch
+            print(i + 1, flush=True)
+""")
+
+
+def test_writer_killed_mid_append_leaves_no_partial_batch(tmp_path):
+    db = tmp_path / "h.sqlite"
+    script = tmp_path / "writer.py"
+    script.write_text(WRITER.format(src=SRC))
+    batch = 400
+    proc = subprocess.Popen([sys.executable, str(script), str(db), str(batch)], stdout=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        done = 0
+        while done < 3:   # wait for committed batches (condition, not sleep)
+            line = proc.stdout.readline()
+            assert line, "writer exited early"
+            done = int(line)
+            assert time.monotonic() < deadline, "writer too slow"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == -signal.SIGKILL
+    con = sqlite3.connect(db)
+    assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    n = con.execute("SELECT COUNT(*) FROM tests").fetchone()[0]
+    assert n >= 3 * batch and n % batch == 0
+    nulls = con.execute("SELECT COUNT(*) FROM tests WHERE method IS NULL OR warnings IS NULL OR "
+                        "source_hash IS NULL").fetchone()[0]
+    assert nulls == 0
+    con.close()
+    with HistoryStore(db) as st:      # and the store still appends
+        assert st.add_tests([rec("W", 1e9)]) == 1
+
+
+def test_diagnosis_appended_once(tmp_path):
+    """A real diagnosis of a simulated test, appended twice from the same recording: one row."""
+    from eha_health import Faults, diagnose, load, simulate
+    r = simulate(kind="reference", faults=Faults(0.3, 0.1, 0.0),
+                 params=load("reference").with_effect_names(["sensor_noise"]), seed=3)
+    csv = tmp_path / "run.csv"
+    r.to_csv(csv)
+    d = diagnose(r, method="deterministic", seed=0)
+    db = tmp_path / "h.sqlite"
+    with HistoryStore(db) as st:
+        assert st.add_diagnosis(d, "A7", 12.0, source_path=csv, usage=3.0) is True
+        assert st.add_diagnosis(d, "A7", 60.0, source_path=csv) is False
+        assert st.add_diagnosis(d, "A7", 60.0, response=r) is True        # no file: hash of the channels
+        assert st.add_diagnosis(d, "A7", 90.0, response=r) is False
+        rows = st.list_tests("A7")
+    assert len(rows) == 2
+    assert rows[0]["k_gm"] == pytest.approx(d.faults.k_gm) and rows[0]["std_gm"] == pytest.approx(d.std["k_gm"])
+    assert rows[0]["method"] == "deterministic" and set(rows[0]["fit_rms"]) == set(d.rms)
+    assert json.dumps(rows)   # JSON-ready for `history list --json`
