@@ -43,7 +43,7 @@ setup(
             'ros-jazzy-common-interfaces==5.3.6',
             'ros-jazzy-std-srvs==5.3.6',
         ],
-        'test': ['pytest', 'rosbags'],
+        'test': ['pytest', 'rosbags', 'filterpy', 'hypothesis'],
     },
     entry_points={
         'console_scripts': [

@@ -2,10 +2,9 @@
 import json
 
 import numpy as np
-import pytest
 
 from eha_health.prognostics.config import load_settings
-from eha_health.prognostics.harness import FINE_DT_H, bench_rul, diagnose_test, make_fleet
+from eha_health.bench.rul import FINE_DT_H, bench_rul, diagnose_test, make_fleet
 
 THR = {"gm": 0.8, "fsj": 0.9, "bkl": 0.85}
 

@@ -8,12 +8,12 @@ Nothing here imports ROS. Modules (docs/prognostics.md has the method and the fi
 * :mod:`.online`      -- the same filter updated one test at a time
 * :mod:`.rul`         -- RUL distributions per fault and overall, ``prognose``, ``plot_prognosis``
 * :mod:`.metrics`     -- PHM metrics (alpha-lambda, prognostic horizon, RA, CRA, convergence, ...)
-* :mod:`.harness`     -- run-to-failure fleet bench (``python -m eha_health.prognostics.harness``)
 * :mod:`.config`      -- settings and :class:`PrognosticsError` (bad input: CLI exit code 2)
 
 Intended CLI wiring: ``history add|list|import|repair`` -> :class:`HistoryStore` methods,
 ``prognose`` -> :func:`prognose` / :func:`plot_prognosis`, ``thresholds`` ->
-:func:`failure_thresholds`, ``bench rul`` -> :func:`bench_rul`.
+:func:`failure_thresholds`; the run-to-failure validation harness (``bench rul``) is
+:mod:`eha_health.bench.rul`.
 """
 from .config import PrognosticsError, Settings, load_settings
 from .rul import plot_prognosis, prognose
@@ -21,12 +21,6 @@ from .store import HealthRecord, History, HistoryStore, default_history_path, re
 from .thresholds import failure_thresholds, threshold_values
 
 
-def bench_rul(*args, **kwargs):
-    """Run the validation harness (see :func:`eha_health.prognostics.harness.bench_rul`)."""
-    from .harness import bench_rul as run
-    return run(*args, **kwargs)
-
-
-__all__ = ["HealthRecord", "History", "HistoryStore", "PrognosticsError", "Settings", "bench_rul",
+__all__ = ["HealthRecord", "History", "HistoryStore", "PrognosticsError", "Settings",
            "default_history_path", "failure_thresholds", "load_settings", "plot_prognosis", "prognose",
            "read_history_csv", "threshold_values"]

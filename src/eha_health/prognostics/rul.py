@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import PrognosticsError, Settings, load_settings
-from .degradation import (MODELS, ModelFit, Series, degradation_segment, fit_models, shape_g,
+from .degradation import (ModelFit, Series, degradation_segment, fit_models, shape_g,
                           shape_g_inv)
 from .thresholds import FAULTS, threshold_values
 

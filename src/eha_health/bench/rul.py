@@ -26,14 +26,14 @@ import hashlib
 import json
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from .config import BenchSettings, Settings, load_settings
-from .thresholds import FAULTS, threshold_values
+from ..prognostics.config import BenchSettings, Settings, load_settings
+from ..prognostics.thresholds import FAULTS, threshold_values
 
 FINE_DT_H = 1.0   # h, grid of the simulated gamma process
 
@@ -237,9 +237,9 @@ class UnitScore:
 
 
 def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float]) -> list[UnitScore]:
-    from .rul import (FaultPrediction, apply_fleet_prior, fleet_prior, life_estimate, overall,
+    from ..prognostics.rul import (FaultPrediction, apply_fleet_prior, fleet_prior, life_estimate, overall,
                       prepare_fault, predict_series, weighted_quantiles)
-    from .metrics import naive_rul
+    from ..prognostics.metrics import naive_rul
     b = s.bench
     first = b.first_prediction_test - 1
     points = [(ui, k) for ui, u in enumerate(units) for k in range(first, len(u.test_h))]
@@ -291,7 +291,7 @@ def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float]) 
 def oracle_alpha_lambda(units: list[Unit], scores: list[UnitScore], thr: dict[str, float],
                         b: BenchSettings) -> dict:
     """alpha-lambda of the oracle's median (:func:`oracle_rul`) at the same prediction points."""
-    from . import metrics as M
+    from ..prognostics import metrics as M
     out = {}
     for lam in b.lambdas:
         res = []
@@ -307,7 +307,7 @@ def oracle_alpha_lambda(units: list[Unit], scores: list[UnitScore], thr: dict[st
 
 def score_fleet(scores: list[UnitScore], b: BenchSettings) -> dict:
     """Fleet metrics, ours and the naive baseline's, and their ratios."""
-    from . import metrics as M
+    from ..prognostics import metrics as M
     out: dict = {"units": len(scores), "points": int(sum(len(sc.t_h) for sc in scores))}
     for name, pick in (("model", lambda sc: sc.p50), ("naive", lambda sc: sc.naive)):
         al = {}
@@ -483,8 +483,8 @@ def synthetic_history_csv(path: str | Path, n_actuators: int = 1000, n_tests: in
 
 def time_prognose(n_actuators: int = 1000, path: str | Path = "out/history_1000.csv") -> dict:
     """Wall time of ``prognose`` (thresholds included, computed afresh) on a synthetic history."""
-    from .rul import prognose
-    from .thresholds import _thresholds
+    from ..prognostics.rul import prognose
+    from ..prognostics.thresholds import _thresholds
     p = synthetic_history_csv(path, n_actuators)
     _thresholds.cache_clear()
     t0 = time.perf_counter()
@@ -494,10 +494,10 @@ def time_prognose(n_actuators: int = 1000, path: str | Path = "out/history_1000.
 
 
 def main(argv=None) -> int:
-    """``python -m eha_health.prognostics.harness`` (the future ``eha-health bench rul``)."""
+    """``python -m eha_health.bench.rul`` (the future ``eha-health bench rul``)."""
     import argparse
-    from .config import PrognosticsError
-    ap = argparse.ArgumentParser(prog="python -m eha_health.prognostics.harness",
+    from ..prognostics.config import PrognosticsError
+    ap = argparse.ArgumentParser(prog="python -m eha_health.bench.rul",
                                  description="Run-to-failure fleet bench of the prognostics (issue 16).")
     ap.add_argument("--units", type=int, help="fleet size (default: bench.n_units of prognostics.yaml)")
     ap.add_argument("--seed", type=int, help="fleet seed (default: bench.seed)")
