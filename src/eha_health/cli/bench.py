@@ -42,6 +42,13 @@ def bench_discrepancy(args) -> int:
     return 0
 
 
+def bench_guard(args) -> int:
+    from ..bench.guard import format_guard, guard_bench
+    res = guard_bench(n=args.random or 12, seed=args.seed or 3, progress=progress(args))
+    print(json.dumps(res, indent=2, default=float) if args.json else format_guard(res))
+    return 0
+
+
 def bench_paper(args) -> int:
     from ..bench.paper import format_markdown, format_text, model_error_yaml, run_bench
     from ..identification.diagnose import DEFAULT_METHOD, METHODS
@@ -70,7 +77,7 @@ def bench_paper(args) -> int:
 
 
 BENCHES = {"speed": bench_speed, "paper": bench_paper, "graph": bench_graph, "floor": bench_floor,
-           "discrepancy": bench_discrepancy}
+           "discrepancy": bench_discrepancy, "guard": bench_guard}
 
 
 def cmd_bench(args) -> int:
@@ -82,15 +89,17 @@ def cmd_bench(args) -> int:
 def register(sub) -> None:
     b = sub.add_parser("bench", help="benchmarks: " + " | ".join(BENCHES),
                        parents=[fitness_option("paper: fitness function"), json_flag(), quiet_flag()])
-    b.add_argument("what", help="speed, paper, graph, floor (the monitor's residual floor) or discrepancy "
-                                "(the loop on synthetic undeclared effects)")
+    b.add_argument("what", help="speed, paper, graph, floor (the monitor's residual floor), discrepancy "
+                                "(the loop on synthetic undeclared effects) or guard (the fast method's global "
+                                "guard from random starts)")
     b.add_argument("--write", metavar="YAML", help="floor: write the settings file, e.g. src/eha_health/data/discrepancy.yaml")
     b.add_argument("--rate", type=float, default=0.0, help="graph: command playback speed (0 as fast as possible)")
     b.add_argument("--no-compile", action="store_true", help="speed: skip the fresh-process compile-time measurement")
-    b.add_argument("--method", default="all", help="paper: deterministic, ga, hybrid or all")
+    b.add_argument("--method", default="all", help="paper: fast, deterministic, ga, hybrid or all")
     b.add_argument("--noise", action="store_true", help="paper: default sensor noise on the reference runs")
     b.add_argument("--random", type=int, default=0, metavar="N",
-                   help="paper: add N random K triples in [0,1]^3; floor: runs (12); discrepancy: noise-only runs (6)")
+                   help="paper: add N random K triples in [0,1]^3; floor: runs (12); discrepancy: noise-only runs (6); "
+                        "guard: cases (12)")
     b.add_argument("--seed", type=int, default=0, help="paper: seed of random cases, noise and GA")
     b.add_argument("--no-de", action="store_true", help="paper: skip the scipy differential_evolution peer")
     b.add_argument("--markdown", help="paper: write the tables to this Markdown file")

@@ -250,9 +250,11 @@ _TABLES: dict = {}
 
 
 def _start_table(params: ModelParams, sequence: FDISequence) -> StartTable:
-    """Signature tables of the monitor model (cached per parameter set and sequence)."""
+    """Signature tables of the monitor model (cached per parameter set and sequence, the last few:
+    the discrepancy loop alternates between the shipped monitor and a candidate's)."""
     key = (pack(params).tobytes(), repr(sequence))
     if key not in _TABLES:
-        _TABLES.clear()
+        while len(_TABLES) >= 4:
+            _TABLES.pop(next(iter(_TABLES)))
         _TABLES[key] = StartTable.build(params, sequence)
     return _TABLES[key]
