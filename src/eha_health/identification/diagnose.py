@@ -220,8 +220,8 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
         if q > GUARD_FACTOR:
             guard = "fired"
             guard_warn.append(f"global guard: the fast fit leaves {q:.1f}x the cost of the model's floor and the "
-                              f"measured noise (limit {GUARD_FACTOR:g}): wrong basin suspected, the global search "
-                              f"(hybrid) ran instead")
+                              f"measured noise (limit {GUARD_FACTOR:g}): a wrong basin, or an effect the model lacks; "
+                              f"the global search (hybrid) ran instead")
             if progress:
                 progress(guard_warn[-1])
             est = search(problem, "hybrid", x_start, stages, seed, options, history, progress)
