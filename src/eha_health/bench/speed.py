@@ -89,12 +89,15 @@ def ga_generation(pop: int = 20, repeat: int = 5) -> dict:
 DIAGNOSIS_CASE = (0.4, 0.6, 0.4)
 
 
-def diagnosis_times(repeat: int = 3, methods=None) -> dict:
+def diagnosis_times(repeat: int = 3, methods=None, de: bool = False) -> dict:
     """Wall time and monitor runs of one diagnosis per method, clean and with the default sensor
     noise, measured side by side in this process (best of ``repeat``; caches warm), and each
-    method's time over the default's: the ratio holds when the machine is busy, the seconds do not."""
+    method's time over the default's: the ratio holds when the machine is busy, the seconds do not.
+    With ``de``, scipy's differential_evolution (the peer of ``bench paper``) runs alongside, and
+    its max abs error over the default's is reported too."""
     from ..identification.diagnose import DEFAULT_METHOD, METHODS, diagnose
     from ..physics.model import simulate
+    from .paper import run_de
     methods = tuple(methods or METHODS)
     ref = load("reference")
     cases = {"clean": simulate("reference", Faults(*DIAGNOSIS_CASE)),
@@ -111,7 +114,14 @@ def diagnosis_times(repeat: int = 3, methods=None) -> dict:
                 key = f"diagnose_{m}_{label}"
                 out[key + "_s"] = min(out.get(key + "_s", np.inf), dt)
                 out[key + "_runs"] = d.evaluations
-        for m in methods:
+                out[key + "_err"] = float(np.max(np.abs(np.array(d.faults.as_tuple()) - DIAGNOSIS_CASE)))
+            if de:
+                est, dt, runs = run_de(r, 0)
+                key = f"diagnose_scipy_de_{label}"
+                out[key + "_s"] = min(out.get(key + "_s", np.inf), dt)
+                out[key + "_runs"] = runs
+                out[key + "_err"] = float(np.max(np.abs(np.array(est) - DIAGNOSIS_CASE)))
+        for m in methods + (("scipy_de",) if de else ()):
             out[f"diagnose_{m}_{label}_over_default"] = (out[f"diagnose_{m}_{label}_s"]
                                                          / out[f"diagnose_{DEFAULT_METHOD}_{label}_s"])
     return out
@@ -191,7 +201,7 @@ def speed(repeat: int = 7, batch: int = 40, with_compile: bool = True) -> dict:
         "batch_speedup": one_core / all_cores,
     })
     res.update(ga_generation())
-    res.update(diagnosis_times())
+    res.update(diagnosis_times(de=True))
     res["step_check"] = step_check()
     return res
 
@@ -219,7 +229,8 @@ def format_speed(r: dict) -> str:
         for label in ("clean", "noisy"):
             lines.append(f"    {label}: " + ", ".join(
                 f"{m} {r[f'diagnose_{m}_{label}_s']:.3f} s / {r[f'diagnose_{m}_{label}_runs']} runs "
-                f"({r[f'diagnose_{m}_{label}_over_default']:.1f}x)" for m in METHODS))
+                f"({r[f'diagnose_{m}_{label}_over_default']:.1f}x)" for m in METHODS + ("scipy_de",)
+                if f"diagnose_{m}_{label}_s" in r))
     if "step_check" in r:
         sc = r["step_check"]
         lines.append(f"  larger monitor step (shipped dt {sc['shipped_dt_s']:.1e} s), time per run and the largest "
