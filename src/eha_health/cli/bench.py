@@ -1,4 +1,4 @@
-"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy)."""
+"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy, fleet)."""
 from __future__ import annotations
 
 import json
@@ -69,8 +69,22 @@ def bench_paper(args) -> int:
     return 0
 
 
+def bench_fleet(args) -> int:
+    from ..bench.fleet import bench_fleet as run, format_bench
+    from ..identification.diagnose import DEFAULT_METHOD, METHODS
+    method = DEFAULT_METHOD if args.method == "all" else args.method
+    if method not in METHODS:
+        raise UsageError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    if args.tests < 2:
+        raise UsageError(f"--tests must be >= 2, got {args.tests}")
+    res = run(n_tests=args.tests, method=method, fmt=args.format, seed=args.seed or 17,
+              plot=args.plot or None, progress=progress(args))
+    print(json.dumps(res, indent=2, default=float) if args.json else format_bench(res))
+    return 0
+
+
 BENCHES = {"speed": bench_speed, "paper": bench_paper, "graph": bench_graph, "floor": bench_floor,
-           "discrepancy": bench_discrepancy}
+           "discrepancy": bench_discrepancy, "fleet": bench_fleet}
 
 
 def cmd_bench(args) -> int:
@@ -82,16 +96,21 @@ def cmd_bench(args) -> int:
 def register(sub) -> None:
     b = sub.add_parser("bench", help="benchmarks: " + " | ".join(BENCHES),
                        parents=[fitness_option("paper: fitness function"), json_flag(), quiet_flag()])
-    b.add_argument("what", help="speed, paper, graph, floor (the monitor's residual floor) or discrepancy "
-                                "(the loop on synthetic undeclared effects)")
+    b.add_argument("what", help="speed, paper, graph, floor (the monitor's residual floor), discrepancy "
+                                "(the loop on synthetic undeclared effects) or fleet (Dask throughput)")
     b.add_argument("--write", metavar="YAML", help="floor: write the settings file, e.g. src/eha_health/data/discrepancy.yaml")
     b.add_argument("--rate", type=float, default=0.0, help="graph: command playback speed (0 as fast as possible)")
     b.add_argument("--no-compile", action="store_true", help="speed: skip the fresh-process compile-time measurement")
-    b.add_argument("--method", default="all", help="paper: deterministic, ga, hybrid or all")
+    b.add_argument("--method", default="all", help="paper: deterministic, ga, hybrid or all; fleet: the "
+                                                   "diagnosis method (all: the default method)")
     b.add_argument("--noise", action="store_true", help="paper: default sensor noise on the reference runs")
     b.add_argument("--random", type=int, default=0, metavar="N",
                    help="paper: add N random K triples in [0,1]^3; floor: runs (12); discrepancy: noise-only runs (6)")
-    b.add_argument("--seed", type=int, default=0, help="paper: seed of random cases, noise and GA")
+    b.add_argument("--seed", type=int, default=0, help="paper: seed of random cases, noise and GA; fleet: "
+                                                       "seed of the simulated fleet (0: 17)")
+    b.add_argument("--tests", type=int, default=60, help="fleet: recordings diagnosed by each configuration (60)")
+    b.add_argument("--format", choices=("mcap", "csv"), default="mcap", help="fleet: recording format (mcap)")
+    b.add_argument("--plot", default="out/bench_fleet.png", help="fleet: PNG of the figures ('' for none)")
     b.add_argument("--no-de", action="store_true", help="paper: skip the scipy differential_evolution peer")
     b.add_argument("--markdown", help="paper: write the tables to this Markdown file")
     b.add_argument("--write-model-error", metavar="YAML",
