@@ -105,26 +105,27 @@ def _load() -> float:
     return round(os.getloadavg()[0], 2)
 
 
-def serial(recordings, method: str, progress=None) -> dict:
-    """In-process, one diagnosis after another, numba on one thread (warm-up done first, timed apart)."""
+def serial(recordings, method: str, progress=None, threads: int = 1) -> dict:
+    """In-process, one diagnosis after another, numba on ``threads`` threads (1: the work unit of a
+    worker; all cores: what a plain loop over ``diagnose`` gets); warm-up done first, timed apart."""
     import numba
 
     from ..fleet.worker import diagnose_recording, warm_up
-    numba.set_num_threads(1)
+    numba.set_num_threads(threads)
     params = load("monitor")
     warm = warm_up(params)
     t0 = time.perf_counter()
     results = []
     for i, rec in enumerate(recordings, 1):
-        results.append(diagnose_recording(str(rec.path), params, method))
+        results.append(diagnose_recording(str(rec.path), params, method, threads=threads))
         if progress:
-            progress(f"serial {i}/{len(recordings)}  {time.perf_counter() - t0:.0f} s")
+            progress(f"serial ({threads} numba thread(s)) {i}/{len(recordings)}  {time.perf_counter() - t0:.0f} s")
     wall = time.perf_counter() - t0
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
     bad = [r for r in results if "error" in r]
     if bad:
         raise RuntimeError(f"serial diagnosis failed: {bad[0]['path']}: {bad[0]['error']}")
-    return {"tasks": len(results), "batch_time_s": wall, "per_hour": 3600 * len(results) / wall, "warm_up_s": warm,
+    return {"tasks": len(results), "numba_threads": threads, "batch_time_s": wall, "per_hour": 3600 * len(results) / wall, "warm_up_s": warm,
             "mean_read_s": float(np.mean([r["read_s"] for r in results])),
             "mean_diagnosis_s": float(np.mean([r["diagnosis_s"] for r in results])),
             "mean_task_s": float(np.mean([r["task_s"] for r in results])),
@@ -155,7 +156,7 @@ def on_cluster(recordings, workers: int, method: str, progress=None) -> dict:
 
 def bench_fleet(n_tests: int = 60, method: str | None = None, fleet_dir: str | Path = "out/bench_fleet",
                 fmt: str = "mcap", seed: int = 17, workers: tuple = (1, 2), plot: str | None = "out/bench_fleet.png",
-                progress: Callable[[str], None] | None = None) -> dict:
+                all_cores_serial: bool = True, progress: Callable[[str], None] | None = None) -> dict:
     """Throughput of serial vs LocalCluster(1, 2 workers) on the same ``n_tests`` simulated recordings."""
     from ..identification.diagnose import DEFAULT_METHOD
     method = method or DEFAULT_METHOD
@@ -168,11 +169,20 @@ def bench_fleet(n_tests: int = 60, method: str | None = None, fleet_dir: str | P
                  "cpu_count": os.cpu_count(), "load": {"start": _load()}}
     res["serial"] = serial(recordings, method, progress)
     res["load"]["after_serial"] = _load()
+    if all_cores_serial:
+        import numba
+        res["serial_all_cores"] = serial(recordings, method, progress, threads=numba.config.NUMBA_NUM_THREADS)
+        res["load"]["after_serial_all_cores"] = _load()
     for n in workers:
         res[f"workers_{n}"] = on_cluster(recordings, n, method, progress)
         res["load"][f"after_workers_{n}"] = _load()
     base = res["serial"]["per_hour"]
     res["speedup"] = {f"workers_{n}": res[f"workers_{n}"]["per_hour"] / base for n in workers}
+    if all_cores_serial:
+        res["speedup"]["serial_all_cores"] = res["serial_all_cores"]["per_hour"] / base
+        res["speedup_vs_serial_all_cores"] = {f"workers_{n}": res[f"workers_{n}"]["per_hour"]
+                                              / res["serial_all_cores"]["per_hour"] for n in workers}
+        res["serial_all_cores"].pop("k")
     ref = res["serial"].pop("k")
     res["max_k_difference_vs_serial"] = {
         f"workers_{n}": max(float(np.max(np.abs(np.subtract(res[f"workers_{n}"]["k"][p], ref[p])))) for p in ref)
@@ -194,8 +204,9 @@ def plot_bench(res: dict, path: str | Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    names = ["serial"] + [k for k in res if k.startswith("workers_")]
-    labels = ["serial\n(in-process)"] + [f"LocalCluster\n{res[k]['workers']} worker(s)" for k in names[1:]]
+    names = [k for k in ("serial", "serial_all_cores") if k in res] + [k for k in res if k.startswith("workers_")]
+    labels = [f"serial\n(numba {res[k]['numba_threads']} thr.)" if k.startswith("serial")
+              else f"LocalCluster\n{res[k]['workers']} worker(s)" for k in names]
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
     a.bar(labels, [res[k]["per_hour"] for k in names], color="tab:blue")
     a.axhline(6000, color="tab:red", ls="--", label="target 6,000/h")
@@ -220,15 +231,16 @@ def plot_bench(res: dict, path: str | Path) -> None:
 def format_bench(res: dict) -> str:
     lines = [f"bench fleet: {res['tests']} recordings ({res['format']}), method {res['method']}, "
              f"{res['cpu_count']} cores, load average {res['load']}"]
-    lines.append(f"  {'configuration':24s} {'diagnoses/h':>12s} {'vs serial':>10s} {'diagnosis s':>12s} "
+    lines.append(f"  {'configuration':28s} {'diagnoses/h':>12s} {'vs serial':>10s} {'diagnosis s':>12s} "
                  f"{'read s':>8s} {'wall/task s':>12s} {'overhead':>9s}")
-    for k in ["serial"] + [k for k in res if k.startswith("workers_")]:
+    for k in [k for k in ("serial", "serial_all_cores") if k in res] + [k for k in res if k.startswith("workers_")]:
         r = res[k]
-        name = "serial in-process" if k == "serial" else f"LocalCluster {r['workers']} worker(s)"
+        name = (f"serial, numba {r['numba_threads']} thread(s)" if k.startswith("serial")
+                else f"LocalCluster {r['workers']} worker(s)")
         wpt = r.get("wall_per_task_s", r["batch_time_s"] / r["tasks"])
         ov = f"{r['overhead']:.1%}" if "overhead" in r else "-"
         sp = res["speedup"].get(k, 1.0)
-        lines.append(f"  {name:24s} {r['per_hour']:12,.0f} {sp:9.2f}x {r['mean_diagnosis_s']:12.3f} "
+        lines.append(f"  {name:28s} {r['per_hour']:12,.0f} {sp:9.2f}x {r['mean_diagnosis_s']:12.3f} "
                      f"{r['mean_read_s']:8.3f} {wpt:12.3f} {ov:>9s}")
     for k in [k for k in res if k.startswith("workers_")]:
         r = res[k]
@@ -236,6 +248,9 @@ def format_bench(res: dict) -> str:
                      f"throughput); warm-up per worker "
                      + ", ".join(f"{w['warm_up_s']:.2f} s" for w in r["worker_setup"])
                      + f"; max |K - serial K| {res['max_k_difference_vs_serial'][k]:.2g}")
+    if "speedup_vs_serial_all_cores" in res:
+        lines.append("  LocalCluster vs the serial loop on all cores: " + ", ".join(
+            f"{k} {v:.2f}x" for k, v in res["speedup_vs_serial_all_cores"].items()))
     lines.append("  targets: " + "; ".join(f"{k}: {'met' if v else 'NOT met'}" for k, v in res["targets"].items()))
     if res.get("plot"):
         lines.append(f"  plot: {res['plot']}")

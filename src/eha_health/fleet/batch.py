@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import datetime as _dt
+import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -82,7 +83,7 @@ def dask_client(scheduler: str | None = None, workers: int = 2, setup: bool = Tr
         if scheduler is None:
             cluster = stack.enter_context(LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                dashboard_address=None, env={"NUMBA_NUM_THREADS": "1"}))
+                dashboard_address=None, env={"NUMBA_NUM_THREADS": "1"}, silence_logs=logging.ERROR))
             client = stack.enter_context(Client(cluster))
         else:
             try:
@@ -152,7 +153,8 @@ def diagnose_fleet(recordings: list[Recording], history: str | Path, scheduler: 
     path, reason), ``wall_time_s`` (all of it, cluster start included), ``batch_time_s``
     (first submit to last write), ``per_hour`` (diagnosed / batch time), mean ``read_s``,
     ``diagnosis_s`` and ``task_s`` on the workers, ``workers``, ``scheduler``, ``method``,
-    ``history``, ``failures_file``, ``worker_setup`` (per worker: pid, warm-up time, numba threads).
+    ``history``, ``failures_file``, ``worker_setup`` (per worker: pid, warm-up time, numba threads,
+    setups run, tasks run), ``task_numba_threads`` (numba's thread count seen inside the tasks).
     """
     if method not in METHODS:
         raise FleetError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
@@ -189,7 +191,6 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
     from distributed import as_completed
     # the calibrated monitor goes to every worker once; tasks carry only a reference to it
     params = client.scatter(load("monitor"), broadcast=True)
-    info = client.run(worker_info)
     t0 = time.perf_counter()
     by_hash = {h: rec for rec, h in todo}
     pending: dict[str, _Pending] = {}
@@ -199,6 +200,7 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
                              key=f"eha-diagnose-{h}", pure=False) for rec, h in todo]
     done = ok = 0
     last_line = 0.0
+    threads: set[int] = set()
     times = {"read_s": 0.0, "diagnosis_s": 0.0, "task_s": 0.0}
 
     def flush(actuator: str) -> None:
@@ -230,6 +232,7 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
             pending[rec.actuator_id].ready[h] = None
         else:
             ok += 1
+            threads.add(res["numba_threads"])
             for k in times:
                 times[k] += res.get(k, 0.0)
             pending[rec.actuator_id].ready[h] = res
@@ -240,9 +243,10 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
             progress(f"{n}/{len(todo)} done: {done} stored, {failures.count} failed, {_fmt_rate(n, el)}, "
                      f"{el:.0f} s")
     ok = max(ok, 1)
+    info = client.run(worker_info)
     return {"diagnosed": done, "batch_time_s": time.perf_counter() - t0,
             "workers": len(client.scheduler_info().get("workers", {})),
-            "worker_setup": list(info.values()),
+            "worker_setup": list(info.values()), "task_numba_threads": sorted(threads),
             **{f"mean_{k}": v / ok for k, v in times.items()}}
 
 

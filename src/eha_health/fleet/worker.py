@@ -67,16 +67,16 @@ def worker_info(dask_worker) -> dict:
 
 
 def diagnose_recording(path: str, params, method: str = DEFAULT_METHOD, seed: int = 0,
-                       discrepancy: bool = False) -> dict:
+                       discrepancy: bool = False, threads: int = 1) -> dict:
     """Diagnose one recording; a dict with the estimate, or with ``error`` (one line) if it failed.
 
     ``params`` is the calibrated monitor model, scattered to every worker once by the client.
     Times [s]: ``read_s`` (reading the file), ``diagnosis_s`` (``diagnose``), ``discrepancy_s``,
-    ``task_s`` (all of it, on the worker).
+    ``task_s`` (all of it, on the worker). ``threads``: numba threads (1 on a worker: one core each).
     """
     import numba
     t0 = time.perf_counter()
-    numba.set_num_threads(1)
+    numba.set_num_threads(threads)
     out: dict = {"path": path, "pid": os.getpid(), "numba_threads": numba.get_num_threads()}
     try:
         from .recordings import read_recording
