@@ -19,6 +19,7 @@ where wall time per task per worker = batch time x workers / tasks.
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import tempfile
@@ -105,6 +106,16 @@ def _load() -> float:
     return round(os.getloadavg()[0], 2)
 
 
+def _cpu(pids: list[int]) -> float:
+    """CPU seconds (user + system, threads included) used so far by the processes ``pids``."""
+    import psutil
+    total = 0.0
+    for p in pids:
+        t = psutil.Process(p).cpu_times()
+        total += t.user + t.system
+    return total
+
+
 def serial(recordings, method: str, progress=None, threads: int = 1) -> dict:
     """In-process, one diagnosis after another, numba on ``threads`` threads (1: the work unit of a
     worker; all cores: what a plain loop over ``diagnose`` gets); warm-up done first, timed apart."""
@@ -114,13 +125,13 @@ def serial(recordings, method: str, progress=None, threads: int = 1) -> dict:
     numba.set_num_threads(threads)
     params = load("monitor")
     warm = warm_up(params)
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), _cpu([os.getpid()])
     results = []
     for i, rec in enumerate(recordings, 1):
         results.append(diagnose_recording(str(rec.path), params, method, threads=threads))
         if progress:
             progress(f"serial ({threads} numba thread(s)) {i}/{len(recordings)}  {time.perf_counter() - t0:.0f} s")
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, _cpu([os.getpid()]) - cpu0
     numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
     bad = [r for r in results if "error" in r]
     if bad:
@@ -129,16 +140,23 @@ def serial(recordings, method: str, progress=None, threads: int = 1) -> dict:
             "mean_read_s": float(np.mean([r["read_s"] for r in results])),
             "mean_diagnosis_s": float(np.mean([r["diagnosis_s"] for r in results])),
             "mean_task_s": float(np.mean([r["task_s"] for r in results])),
-            "k": {r["path"]: r["k"] for r in results}}
+            "cpu_per_task_s": cpu / len(results), "k": {r["path"]: r["k"] for r in results}}
 
 
 def on_cluster(recordings, workers: int, method: str, progress=None) -> dict:
     """A fresh LocalCluster of ``workers`` processes into a fresh store: the real ``fleet diagnose`` path."""
-    from ..fleet.batch import diagnose_fleet
+    from ..fleet.batch import dask_client, diagnose_fleet
     from ..prognostics.store import HistoryStore
-    with tempfile.TemporaryDirectory(prefix="eha-bench-fleet-") as d:
+    with tempfile.TemporaryDirectory(prefix="eha-bench-fleet-") as d, contextlib.ExitStack() as stack:
         db = Path(d) / "history.sqlite"
-        s = diagnose_fleet(recordings, db, workers=workers, method=method, progress=progress)
+        t0 = time.perf_counter()
+        client = stack.enter_context(dask_client(workers=workers))
+        start = time.perf_counter() - t0
+        # every process of the cluster: this one (client, scheduler, nannies) and the workers
+        pids = [os.getpid()] + list(client.run(os.getpid).values())
+        cpu0 = _cpu(pids)
+        s = diagnose_fleet(recordings, db, method=method, progress=progress, client=client)
+        cpu = _cpu(pids) - cpu0
         with HistoryStore(db) as st:
             k = {r["source_path"]: [r["k_gm"], r["k_fsj"], r["k_bkl"]] for r in st.list_tests()}
     if s["failed"] or s["diagnosed"] != len(recordings):
@@ -150,13 +168,15 @@ def on_cluster(recordings, workers: int, method: str, progress=None) -> dict:
             "mean_diagnosis_s": s["mean_diagnosis_s"], "mean_task_s": s["mean_task_s"],
             "wall_per_task_s": per_task, "overhead": 1.0 - s["mean_task_s"] / per_task,
             "non_diagnosis": 1.0 - s["mean_diagnosis_s"] / per_task,
-            "cluster_start_and_setup_s": s["wall_time_s"] - s["batch_time_s"],
+            "cpu_per_task_s": cpu / s["diagnosed"], "task_cpu_s": s["mean_task_cpu_s"],
+            "cpu_overhead": 1.0 - s["mean_task_cpu_s"] * s["diagnosed"] / cpu,
+            "cluster_start_and_setup_s": start + s["wall_time_s"] - s["batch_time_s"],
             "worker_setup": s["worker_setup"], "k": k}
 
 
 def bench_fleet(n_tests: int = 60, method: str | None = None, fleet_dir: str | Path = "out/bench_fleet",
                 fmt: str = "mcap", seed: int = 17, workers: tuple = (1, 2), plot: str | None = "out/bench_fleet.png",
-                all_cores_serial: bool = True, progress: Callable[[str], None] | None = None) -> dict:
+                all_cores_serial: bool = False, progress: Callable[[str], None] | None = None) -> dict:
     """Throughput of serial vs LocalCluster(1, 2 workers) on the same ``n_tests`` simulated recordings."""
     from ..identification.diagnose import DEFAULT_METHOD
     method = method or DEFAULT_METHOD
@@ -190,6 +210,9 @@ def bench_fleet(n_tests: int = 60, method: str | None = None, fleet_dir: str | P
     for n in workers:
         res[f"workers_{n}"].pop("k")
     top = f"workers_{max(workers)}"
+    cores = os.cpu_count() or 1
+    res["capacity"] = {"cores": cores, "from": top, "cpu_per_task_s": res[top]["cpu_per_task_s"],
+                       "per_hour": cores * 3600.0 / res[top]["cpu_per_task_s"]}
     res["targets"] = {"2 workers vs serial >= 1.8x": res["speedup"].get("workers_2", 0.0) >= 1.8,
                       "Dask overhead <= 5 % of task time": all(res[f"workers_{n}"]["overhead"] <= 0.05 for n in workers),
                       ">= 6000 diagnoses per hour": res[top]["per_hour"] >= 6000}
@@ -248,6 +271,16 @@ def format_bench(res: dict) -> str:
                      f"throughput); warm-up per worker "
                      + ", ".join(f"{w['warm_up_s']:.2f} s" for w in r["worker_setup"])
                      + f"; max |K - serial K| {res['max_k_difference_vs_serial'][k]:.2g}")
+    lines.append("  CPU time (load-independent; all processes: client, scheduler, nannies, workers):")
+    for k in [k for k in ("serial", "serial_all_cores") if k in res] + [k for k in res if k.startswith("workers_")]:
+        r = res[k]
+        extra = (f", task threads {r['task_cpu_s']:.3f} s, Dask/store CPU overhead {r['cpu_overhead']:.1%}"
+                 if "cpu_overhead" in r else "")
+        lines.append(f"    {k}: {r['cpu_per_task_s']:.3f} CPU s per diagnosis{extra}")
+    c = res.get("capacity")
+    if c:
+        lines.append(f"    capacity at full use of {c['cores']} cores: {c['per_hour']:,.0f} diagnoses/h "
+                     f"({c['cores']} x 3600 / {c['cpu_per_task_s']:.3f} CPU s of {c['from']})")
     if "speedup_vs_serial_all_cores" in res:
         lines.append("  LocalCluster vs the serial loop on all cores: " + ", ".join(
             f"{k} {v:.2f}x" for k, v in res["speedup_vs_serial_all_cores"].items()))

@@ -78,7 +78,7 @@ def bench_fleet(args) -> int:
     if args.tests < 2:
         raise UsageError(f"--tests must be >= 2, got {args.tests}")
     res = run(n_tests=args.tests, method=method, fmt=args.format, seed=args.seed or 17,
-              plot=args.plot or None, progress=progress(args))
+              plot=args.plot or None, all_cores_serial=args.serial_all_cores, progress=progress(args))
     print(json.dumps(res, indent=2, default=float) if args.json else format_bench(res))
     return 0
 
@@ -110,6 +110,8 @@ def register(sub) -> None:
                                                        "seed of the simulated fleet (0: 17)")
     b.add_argument("--tests", type=int, default=60, help="fleet: recordings diagnosed by each configuration (60)")
     b.add_argument("--format", choices=("mcap", "csv"), default="mcap", help="fleet: recording format (mcap)")
+    b.add_argument("--serial-all-cores", action="store_true",
+                   help="fleet: also time the serial loop with numba on all cores")
     b.add_argument("--plot", default="out/bench_fleet.png", help="fleet: PNG of the figures ('' for none)")
     b.add_argument("--no-de", action="store_true", help="paper: skip the scipy differential_evolution peer")
     b.add_argument("--markdown", help="paper: write the tables to this Markdown file")
