@@ -51,6 +51,10 @@ def test_simulate_is_reproducible_and_the_manifest_points_at_its_files(bags, tmp
     assert len(recs) == 4 and {r.actuator_id for r in recs} == {"U000", "U001"}
     for r in recs:
         assert r.path.is_file() and r.path.is_relative_to(bags.resolve())
+    # a folder: the recordings in its sub-folders, identified by the manifest above them
+    found = sorted(find_recordings([bags]), key=lambda r: str(r.path))
+    assert [(r.path, r.actuator_id, r.time_h) for r in found] == \
+        [(r.path, r.actuator_id, r.time_h) for r in sorted(recs, key=lambda r: str(r.path))]
     # the last tests of each actuator are degraded, the first ones healthy (the run-to-failure laws)
     assert all(max(r.truth.values()) == 0.0 for r in recs if r.time_h == 0.0)
     assert all(max(r.truth.values()) > 0.2 for r in recs if r.time_h > 0.0)

@@ -6,7 +6,8 @@ Simulation. The degrading actuators are those of the run-to-failure bench
 test schedule, noise seeds; one source). Each of ``n_actuators`` units gets ``n_tests`` tests
 spread evenly over its schedule (healthy to near the end of life); each test is the
 reference EHA with sensor noise at the true K, recorded as an MCAP bag to the topic contract
-(truth in ``truth/test_1``, actuator id, test time and usage in ``eha_health``) or as a CSV.
+(truth in ``truth/test_1``, the actuator id in ``eha_health``, test time and usage in
+``history/test_1``) or as a CSV.
 Usage is flight cycles: the test time over the unit's mean flight time (drawn per unit,
 1.5-3 h). Same seed, same bytes.
 
@@ -29,7 +30,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..fleet.recordings import META_RECORD, MANIFEST_NAME, FleetError, read_manifest, write_manifest
+from ..fleet.recordings import HISTORY_META, META_RECORD, MANIFEST_NAME, FleetError, read_manifest, write_manifest
 from ..physics.faults import FAULT_NAMES, Faults
 from ..physics.model import simulate
 from ..physics.params import load
@@ -74,8 +75,8 @@ def simulate_fleet(n_actuators: int, n_tests: int, seed: int, out: str | Path, f
             r = simulate(kind="reference", faults=Faults(*truth.values()), params=params, seed=noise_seed)
             path = folder / f"{u.actuator_id}_t{int(i):04d}.{fmt}"
             if fmt == "mcap":
-                _write_bag(path, r, truth, {"actuator_id": u.actuator_id, "time_h": repr(t_h),
-                                            "usage": repr(usage), "usage_unit": "cycles"})
+                _write_bag(path, r, truth, u.actuator_id, {"time_h": repr(t_h), "usage": repr(usage),
+                                                           "usage_unit": "cycles"})
             else:
                 r.to_csv(path)
             rows.append({"actuator_id": u.actuator_id, "time_h": repr(t_h), "usage": repr(usage),
@@ -91,13 +92,14 @@ def simulate_fleet(n_actuators: int, n_tests: int, seed: int, out: str | Path, f
             "eol_fault": {u.actuator_id: u.eol_fault for u in units}, "wall_time_s": time.perf_counter() - t0}
 
 
-def _write_bag(path: Path, response, truth: dict, identity: dict) -> None:
+def _write_bag(path: Path, response, truth: dict, actuator_id: str, when: dict) -> None:
     from ..io.bagrun import write_run
     from ..io.mcaplog import BagWriter
     tmp = path.with_name(path.name + ".part")
     with BagWriter(tmp) as w:
-        w.add_metadata(META_RECORD, identity)
-        write_run(w, response, truth=truth, actuator_id=identity["actuator_id"])
+        w.add_metadata(META_RECORD, {"actuator_id": actuator_id})
+        w.add_metadata(HISTORY_META.format(1), when)
+        write_run(w, response, test_id=1, truth=truth, actuator_id=actuator_id)
     tmp.replace(path)   # a killed simulation leaves no half-written recording under the final name
 
 

@@ -32,7 +32,7 @@ def cmd_fleet_diagnose(args) -> int:
     s = diagnose_fleet(recs, history, scheduler=args.scheduler, workers=workers, method=args.method,
                        seed=args.seed, discrepancy=args.discrepancy, progress=progress(args))
     print(json.dumps(s, default=float) if args.json else format_summary(s))
-    return 0
+    return 1 if s["failed"] else 0   # the batch ran to its end; 1 tells a script that some files failed
 
 
 def register(sub) -> None:

@@ -2,8 +2,8 @@
 
 A recording is an MCAP bag to the topic contract (docs/interfaces.md) or a CSV in the
 ``simulate`` format. Its actuator id and test time [h] come from the bag's metadata record
-``eha_health`` (keys ``actuator_id``, ``time_h`` and optionally ``usage``, ``usage_unit``;
-the record the live monitor writes) or from a manifest CSV (:data:`MANIFEST_COLUMNS`).
+``eha_health`` (``actuator_id``, the record the live monitor writes) and ``history/test_<id>``
+(``time_h``, ``usage``: the history CLI's record), or from a manifest CSV (:data:`MANIFEST_COLUMNS`).
 
 Manifest paths are relative to the manifest's folder and must stay inside it (no ``..`` or
 absolute path escaping it): a manifest names files of one fleet folder, nothing else.
@@ -26,8 +26,11 @@ MANIFEST_COLUMNS = ("actuator_id", "time_h", "usage", "usage_unit", "path",
 #: Columns a manifest must have.
 MANIFEST_REQUIRED = ("actuator_id", "time_h", "path")
 MANIFEST_NAME = "manifest.csv"
-#: Bag metadata record with the actuator id and the test time (written by the monitor and ``fleet simulate``).
+#: Bag metadata record with the actuator id (the live monitor writes it; so does ``fleet simulate``).
 META_RECORD = "eha_health"
+#: Bag metadata record with the operating time [h] and usage of test window <id> (the convention of the
+#: history CLI of issue 16, ``io.bagrun.HISTORY_META`` on its branch: use that one after the merge).
+HISTORY_META = "history/test_{}"
 SUFFIXES = (".mcap", ".csv")
 
 
@@ -112,14 +115,20 @@ def write_manifest(path: str | Path, rows: list[dict]) -> Path:
 
 
 def bag_identity(path: Path) -> dict:
-    """``{actuator_id, time_h, usage, usage_unit}`` from a bag's ``eha_health`` metadata (absent keys missing)."""
-    rec = bag_metadata(path).get(META_RECORD, {})
+    """``{actuator_id, time_h, usage, usage_unit}`` of a bag, where its metadata has them: the actuator
+    from :data:`META_RECORD`, the time and usage from its one :data:`HISTORY_META` record (else from
+    :data:`META_RECORD`)."""
+    md = bag_metadata(path)
+    rec = dict(md.get(META_RECORD, {}))
+    tests = [name for name in md if name.startswith(HISTORY_META.format(""))]
+    if len(tests) == 1:
+        rec.update({k: v for k, v in md[tests[0]].items() if k in ("time_h", "usage", "usage_unit")})
     out: dict = {}
     if rec.get("actuator_id"):
         out["actuator_id"] = rec["actuator_id"]
     for key in ("time_h", "usage"):
         if rec.get(key) not in (None, ""):
-            out[key] = _number(rec[key], f"{path}: metadata {META_RECORD}", key)
+            out[key] = _number(rec[key], f"{path}: metadata", key)
     if rec.get("usage_unit"):
         out["usage_unit"] = rec["usage_unit"]
     return out
@@ -128,30 +137,39 @@ def bag_identity(path: Path) -> dict:
 def find_recordings(paths: list[str | Path]) -> list[Recording]:
     """Recordings under ``paths`` (files, or folders searched recursively for .mcap and .csv).
 
-    A ``manifest.csv`` is not a recording: it gives the actuator id and test time of the
-    files in its folder that it lists (CSVs need it; bags carry their own metadata). Without
-    either, the recording is still returned (it then fails in the batch, with that reason).
+    A ``manifest.csv`` is not a recording: it gives the actuator id and test time of the files
+    it lists (CSVs need it; bags carry their own metadata). A file's manifest is the nearest
+    one listing it, from the file's folder up to the folder given (a file given alone: its own
+    folder). Without either, the recording is still returned (it fails in the batch, saying why).
     """
-    files: list[Path] = []
+    found: list[tuple[Path, Path]] = []   # (file, the top folder its manifest may be in)
     for p in map(Path, paths):
         if p.is_dir():
-            files += sorted(q for q in p.rglob("*") if q.is_file() and q.suffix.lower() in SUFFIXES)
+            top = p.resolve()
+            found += [(q.resolve(), top) for q in sorted(p.rglob("*")) if q.is_file() and q.suffix.lower() in SUFFIXES]
         elif p.is_file():
-            files.append(p)
+            found.append((p.resolve(), p.resolve().parent))
         else:
             raise FleetError(f"{p}: no such file or folder")
     manifests: dict[Path, dict[Path, Recording]] = {}
-    seen, out = set(), []
-    for f in files:
-        full = f.resolve()
-        if f.name == MANIFEST_NAME or full in seen:
-            continue
-        seen.add(full)
-        folder = full.parent
+
+    def listed(folder: Path) -> dict[Path, Recording]:
         if folder not in manifests:
             m = folder / MANIFEST_NAME
             manifests[folder] = {r.path: r for r in read_manifest(m)} if m.is_file() else {}
-        out.append(manifests[folder].get(full) or Recording(full))
+        return manifests[folder]
+
+    seen, out = set(), []
+    for full, top in found:
+        if full.name == MANIFEST_NAME or full in seen:
+            continue
+        seen.add(full)
+        rec = None
+        for folder in [full.parent, *full.parent.parents]:
+            rec = listed(folder).get(full)
+            if rec is not None or folder == top or not folder.is_relative_to(top):
+                break
+        out.append(rec or Recording(full))
     if not out:
         raise FleetError(f"no .mcap or .csv recordings in {', '.join(map(str, paths))}")
     return out
@@ -165,9 +183,10 @@ def complete_identity(rec: Recording) -> None:
         if "actuator_id" in ident and "time_h" in ident:
             rec.actuator_id, rec.time_h = ident["actuator_id"], ident["time_h"]
             rec.usage, rec.usage_unit = ident.get("usage"), ident.get("usage_unit")
-            rec.origin = f"bag metadata {META_RECORD}"
+            rec.origin = "bag metadata"
     if rec.actuator_id is None or rec.time_h is None:
-        where = (f"no '{META_RECORD}' metadata with actuator_id and time_h" if rec.path.suffix.lower() == ".mcap"
+        where = (f"no metadata '{META_RECORD}' with actuator_id and '{HISTORY_META.format('<id>')}' with time_h"
+                 if rec.path.suffix.lower() == ".mcap"
                  else "a CSV recording has no metadata")
         raise FleetError(f"unknown actuator id / test time: {where}, and no manifest lists the file")
 
