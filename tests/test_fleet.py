@@ -21,7 +21,7 @@ from eha_health.cli import main as cli_main  # noqa: E402
 from eha_health.fleet import (FleetError, diagnose_fleet, failures_path, find_recordings,  # noqa: E402
                               read_manifest)
 from eha_health.fleet.batch import dask_client  # noqa: E402
-from eha_health.fleet.recordings import complete_identity  # noqa: E402
+from eha_health.fleet.recordings import Recording, complete_identity  # noqa: E402
 from eha_health.prognostics.store import HistoryStore, sha256_file  # noqa: E402
 
 METHOD = "deterministic"   # the fastest real method keeps these tests short; the bench runs the default
@@ -78,6 +78,14 @@ def test_bag_metadata_names_the_actuator_and_time(bags, tmp_path):
         (src.actuator_id, src.time_h, src.usage)
     with pytest.raises(FleetError, match="CSV recording has no metadata"):
         complete_identity(found["notes.csv"])
+    # cut off (no summary): the metadata, written first, is still found by reading the file through
+    (tmp_path / "cut.mcap").write_bytes(src.path.read_bytes()[:200_000])
+    cut = Recording(tmp_path / "cut.mcap")
+    complete_identity(cut)
+    assert (cut.actuator_id, cut.time_h) == (src.actuator_id, src.time_h)
+    (tmp_path / "bare.mcap").write_bytes(src.path.read_bytes()[:8] + b"\0" * 64)
+    with pytest.raises(ValueError):
+        complete_identity(Recording(tmp_path / "bare.mcap"))
 
 
 def test_manifest_paths_may_not_leave_its_folder(tmp_path, capsys):
