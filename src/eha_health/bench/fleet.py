@@ -273,7 +273,7 @@ def format_bench(res: dict) -> str:
                      f"throughput); warm-up per worker "
                      + ", ".join(f"{w['warm_up_s']:.2f} s" for w in r["worker_setup"])
                      + f"; max |K - serial K| {res['max_k_difference_vs_serial'][k]:.2g}")
-    lines.append("  CPU time (load-independent; all processes: client, scheduler, nannies, workers):")
+    lines.append("  CPU time (less load-dependent than wall time; all processes: client, scheduler, nannies, workers):")
     for k in [k for k in ("serial", "serial_all_cores") if k in res] + [k for k in res if k.startswith("workers_")]:
         r = res[k]
         extra = (f", task threads {r['task_cpu_s']:.3f} s, Dask/store CPU overhead {r['cpu_overhead']:.1%}"
