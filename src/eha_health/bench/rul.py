@@ -13,7 +13,8 @@ Each unit of the fleet (unit i, its own random stream ``SeedSequence([seed, i])`
 * a test schedule every ``test_interval_h`` (+- jitter) up to the EOL; at each test the
   reference EHA with sensor noise is simulated at the true K and **diagnosed for real**
   (``eha_health.diagnose``); diagnoses are cached on disk as JSON keyed by the sha256 of
-  their inputs (true K, noise seed, method, diagnosis seed, package version).
+  their inputs (true K, noise seed, method, diagnosis seed, package version, and the
+  :func:`diagnosis_fingerprint` of the code and data a diagnosis depends on).
 
 Scoring: at every test from ``first_prediction_test`` on, the prognosis of the history so
 far (fleet prior from the other units' complete histories) is compared with the true RUL
@@ -22,9 +23,11 @@ far (fleet prior from the other units' complete histories) is compared with the 
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +35,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..physics.faults import FAULT_UPPER
 from ..prognostics.config import BenchSettings, Settings, load_settings
 from ..prognostics.thresholds import FAULTS, threshold_values
 
@@ -144,10 +148,30 @@ def make_fleet(bench: BenchSettings | None = None, thresholds: dict[str, float] 
 
 
 # ----------------------------------------------------------------------------- diagnoses
+#: What a simulated diagnosis depends on: the code of these packages and these data files.
+DIAGNOSIS_CODE = ("physics", "identification", "signals")
+DIAGNOSIS_DATA = ("params.yaml", "model_error.yaml", "monitor.yaml")
+
+
+@functools.lru_cache(maxsize=1)
+def diagnosis_fingerprint() -> str:
+    """sha256 of the sources and data files a simulated diagnosis depends on (:data:`DIAGNOSIS_CODE`,
+    :data:`DIAGNOSIS_DATA`): any change to them keys a fresh cache entry, so a cached diagnosis is
+    never one of older code (a version string is not bumped on every change)."""
+    root = Path(__file__).resolve().parents[1]
+    files = sorted(f for pkg in DIAGNOSIS_CODE for f in (root / pkg).rglob("*.py"))
+    files += [root / "data" / n for n in DIAGNOSIS_DATA if (root / "data" / n).is_file()]
+    h = hashlib.sha256()
+    for f in files:
+        h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
 def _cache_key(k: np.ndarray, seed: int, method: str) -> tuple[str, dict]:
     import eha_health
     inputs = {"k": [round(float(v), 12) for v in k], "noise_seed": int(seed), "effects": ["sensor_noise"],
-              "method": method, "diagnosis_seed": 0, "version": eha_health.__version__}
+              "method": method, "diagnosis_seed": 0, "version": eha_health.__version__,
+              "code": diagnosis_fingerprint()}
     return hashlib.sha256(json.dumps(inputs, sort_keys=True).encode()).hexdigest(), inputs
 
 
@@ -472,60 +496,49 @@ def synthetic_history_csv(path: str | Path, n_actuators: int = 1000, n_tests: in
     t = np.arange(n_tests) * 40.0
     with path.open("w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+        w.writerow(["actuator_id", "time_h", *(f"k_{f}" for f in FAULTS), *(f"std_{f}" for f in FAULTS)])
         for a in range(n_actuators):
             ks = [np.clip(6e-4 * math.exp(0.3 * rng.standard_normal()) * np.maximum(t - 100, 0)
-                          + rng.normal(0, 0.003, n_tests), 0, 1.5) for _ in FAULTS]
+                          + rng.normal(0, 0.003, n_tests), 0, FAULT_UPPER) for _ in FAULTS]
             for i in range(n_tests):
                 w.writerow([f"A{a:04d}", t[i], *(round(float(k[i]), 6) for k in ks), 0.003, 0.003, 0.003])
     return path
 
 
-def time_prognose(n_actuators: int = 1000, path: str | Path = "out/history_1000.csv") -> dict:
-    """Wall time of ``prognose`` (thresholds included, computed afresh) on a synthetic history."""
+def time_prognose(n_actuators: int = 1000, path: str | Path | None = None) -> dict:
+    """Wall time of ``prognose`` (thresholds included, computed afresh) on a synthetic history
+    (written to ``path``, default a temporary file)."""
+    import tempfile
     from ..prognostics.rul import prognose
     from ..prognostics.thresholds import _thresholds
-    p = synthetic_history_csv(path, n_actuators)
-    _thresholds.cache_clear()
-    t0 = time.perf_counter()
-    obj = prognose(p)
-    return {"actuators": len(obj["actuators"]), "series": 3 * n_actuators, "wall_time_s": time.perf_counter() - t0,
-            "history": str(p)}
+    with tempfile.TemporaryDirectory() as tmp:
+        p = synthetic_history_csv(path or Path(tmp) / f"history_{n_actuators}.csv", n_actuators)
+        _thresholds.cache_clear()
+        t0 = time.perf_counter()
+        obj = prognose(p)
+        wall = time.perf_counter() - t0
+    return {"actuators": len(obj["actuators"]), "series": 3 * n_actuators, "wall_time_s": wall,
+            "load_1min": os.getloadavg()[0]}
 
 
-def main(argv=None) -> int:
-    """``python -m eha_health.bench.rul`` (the future ``eha-health bench rul``)."""
-    import argparse
-    from ..prognostics.config import PrognosticsError
-    ap = argparse.ArgumentParser(prog="python -m eha_health.bench.rul",
-                                 description="Run-to-failure fleet bench of the prognostics (issue 16).")
-    ap.add_argument("--units", type=int, help="fleet size (default: bench.n_units of prognostics.yaml)")
-    ap.add_argument("--seed", type=int, help="fleet seed (default: bench.seed)")
-    ap.add_argument("--settings", help="a user YAML merged over data/prognostics.yaml")
-    ap.add_argument("--cache", default="out/rul_cache", help="diagnosis cache directory")
-    ap.add_argument("--plot", default="out/bench_rul.png", help="PNG to write ('' for none)")
-    ap.add_argument("--json", dest="json_out", help="write the result object to this file")
-    ap.add_argument("--quiet", action="store_true")
-    ap.add_argument("--time-prognose", type=int, metavar="N",
-                    help="only time prognose on a synthetic N-actuator history (every fault degrading)")
-    a = ap.parse_args(argv)
-    if a.time_prognose:
-        print(json.dumps(time_prognose(a.time_prognose)))
-        return 0
-    over = {"bench": {k: v for k, v in (("n_units", a.units), ("seed", a.seed)) if v is not None}}
-    try:
-        s = load_settings(a.settings, over)
-        r = bench_rul(s, a.cache, a.plot or None, None if a.quiet else (lambda m: print(m, flush=True)))
-    except PrognosticsError as e:
-        print(f"error: {e}")
-        return 2
-    if a.json_out:
-        Path(a.json_out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.json_out).write_text(json.dumps(r, indent=1, default=float))
-    if a.quiet:
-        print(format_result(r))
-    return 0
+MARK_BEGIN = "<!-- bench rul: begin (made by the command below; do not edit by hand) -->"
+MARK_END = "<!-- bench rul: end -->"
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+def write_markdown(r: dict, path: str | Path, command: str) -> None:
+    """The figures of a bench result, with the command that made them, into a Markdown file: between
+    :data:`MARK_BEGIN` and :data:`MARK_END` if the file has them (the rest is kept), else the whole file."""
+    import platform
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    block = "\n".join([MARK_BEGIN, "", f"`{command}` ({r['units']} units, {r['diagnoses']['diagnoses']} real "
+                       f"diagnoses; predictions {r['prediction_wall_time_s']:.0f} s on {platform.machine()}, "
+                       f"load {load:.1f}):", "", format_result(r), "", MARK_END])
+    path = Path(path)
+    text = path.read_text() if path.is_file() else ""
+    if MARK_BEGIN in text and MARK_END in text:
+        a, rest = text.split(MARK_BEGIN, 1)
+        text = a + block + rest.split(MARK_END, 1)[1]
+    else:
+        text = block + "\n"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
