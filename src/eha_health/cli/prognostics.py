@@ -17,11 +17,6 @@ from ..physics.faults import FAULT_KEYS
 from .common import (UsageError, fitness_option, history_option, json_flag, load_run, method_option, progress,
                      quiet_flag, seed_option, test_option)
 
-#: MCAP metadata record the monitor writes for each test it appends to its history; ``history add`` of
-#: such a log takes the test's operating time from it.
-HISTORY_META = "history/test_{}"
-
-
 def _db(args, must_exist: bool) -> Path:
     from ..prognostics.store import default_history_path
     path = Path(args.history).expanduser() if args.history else default_history_path()
@@ -38,18 +33,6 @@ def _finite(v: float | None, name: str, minimum: float = 0.0) -> None:
         raise UsageError(f"{name} must be a finite number >= {minimum:g}, got {v}")
 
 
-def bag_test_time(path: Path, test_id: int | None) -> dict:
-    """Operating time of a test recorded in an MCAP log (metadata :data:`HISTORY_META`), or {}."""
-    from ..io.mcaplog import read_bag
-    meta = read_bag(path, topics=[]).metadata
-    rec = meta.get(HISTORY_META.format(test_id)) if test_id is not None else None
-    out = {}
-    for key in ("time_h", "usage", "sim_time_s"):
-        if rec and rec.get(key) not in (None, "", "None"):
-            out[key] = float(rec[key])
-    return out
-
-
 def cmd_history_add(args) -> int:
     from ..identification.diagnose import diagnose
     from ..prognostics.store import HistoryStore, sha256_file
@@ -64,13 +47,14 @@ def cmd_history_add(args) -> int:
         print(f"note: {n}", file=sys.stderr)
     time_h, usage, sim_s = args.time_h, args.usage, None
     if path.suffix.lower() == ".mcap":
-        meta = bag_test_time(path, r.meta.get("test_id"))
+        from ..io.bagrun import history_times
+        meta = history_times(path, r.meta.get("test_id"))
         time_h = meta.get("time_h") if time_h is None else time_h
         usage = meta.get("usage") if usage is None else usage
         sim_s = meta.get("sim_time_s")
     if time_h is None:
         raise UsageError(f"{path}: no --time-h and the recording carries no operating time "
-                         f"(MCAP metadata {HISTORY_META.format('<id>')})")
+                         f"(MCAP metadata history/test_<id>)")
     digest = sha256_file(path)
     with HistoryStore(db) as st:
         known = [t for t in st.list_tests() if t["source_hash"] == digest]
