@@ -243,6 +243,51 @@ def oracle_rul(u: Unit, t_h: float, thr: dict[str, float], n_paths: int = 400, s
     return best
 
 
+def law_known_rul(u: Unit, k: int, thr: dict[str, float], shape_known: bool, life_median_h: float) -> float:
+    """Median RUL [h] at test ``k`` of a predictor that knows the law of the unit's failing fault (and
+    its shape parameter if ``shape_known``, else the middle of the fleet's range) and its volatility,
+    and fits onset and life to the unit's own diagnoses up to test ``k``: a grid posterior on
+    (onset, L) under K ~ N(thr h((t - onset)/L), std^2 + nu mu), L log-uniform over 0.1 to 10 fleet
+    median lives; RUL = onset + L - t_k (mean path).
+    It bounds what learning the life from a unit's own partial history can give once its law is known."""
+    p = next(q for q in u.paths if q.fault == u.eol_fault)
+    fi = FAULTS.index(p.fault)
+    t, kk, sd = u.test_h[:k + 1], u.diag_k[:k + 1, fi], u.diag_std[:k + 1, fi]
+    life = np.geomspace(0.1 * life_median_h, 10 * life_median_h, 300)[:, None, None]
+    onset = np.linspace(0.0, t[-1], 150)[None, :, None]
+    shape, knee = (p.shape, p.knee) if shape_known else (
+        {"linear": 1.0, "exponential": 2.25, "power": 2.0, "two_phase": 2.5}[p.law], 0.5)
+    mu = thr[p.fault] * _mean_shape(p.law, (t - onset) / life, shape, knee)
+    var = sd ** 2 + p.volatility * np.maximum(mu, 1e-9)
+    ll = -0.5 * np.sum((kk - mu) ** 2 / var + np.log(var), -1)
+    w = np.exp(ll - ll.max()).ravel()
+    rul = ((onset + life)[..., 0] - t[-1]).ravel()
+    o = np.argsort(rul)
+    return float(rul[o][np.searchsorted(np.cumsum(w[o]) / w.sum(), 0.5)])
+
+
+def law_known_alpha_lambda(units: list[Unit], scores: list["UnitScore"], thr: dict[str, float],
+                           b: BenchSettings) -> dict:
+    """alpha-lambda of :func:`law_known_rul` (shape known, and shape at mid-range) at the scored points."""
+    from ..prognostics import metrics as M
+    out = {}
+    for key, known in (("law_and_shape_known", True), ("law_known", False)):
+        out[key] = {}
+        for lam in b.lambdas:
+            res = []
+            for u, sc in zip(units, scores):
+                tl = sc.t_h[0] + lam * (sc.eol_h - sc.t_h[0])
+                i = int(np.nonzero(sc.t_h <= tl)[0][-1])
+                k = int(np.searchsorted(u.test_h, sc.t_h[i]))
+                r = np.full(len(sc.t_h), np.nan)
+                r[i] = law_known_rul(u, k, thr, known, b.life_median_h)
+                res.append(M.alpha_lambda(sc.t_h[:i + 1], r[:i + 1], sc.eol_h, b.alpha, lam))
+            res = [v for v in res if v is not None]
+            out[key][str(lam)] = {"fraction": float(np.mean(res)) if res else float("nan"),
+                                  "misses": int(len(res) - sum(res)), "units": len(res)}
+    return out
+
+
 # ----------------------------------------------------------------------------- evaluation
 @dataclass
 class UnitScore:
@@ -439,7 +484,8 @@ def bench_rul(settings: Settings | None = None, cache_dir: str | Path = "out/rul
     t1 = time.perf_counter()
     scores = _predict_unit_points(units, s, thr)
     result = score_fleet(scores, s.bench)
-    result["oracle"] = {"alpha_lambda": oracle_alpha_lambda(units, scores, thr, s.bench)}
+    result["oracle"] = {"alpha_lambda": oracle_alpha_lambda(units, scores, thr, s.bench),
+                        **law_known_alpha_lambda(units, scores, thr, s.bench)}
     result["thresholds"] = thr
     result["diagnoses"] = diag
     result["prediction_wall_time_s"] = time.perf_counter() - t1
@@ -468,6 +514,13 @@ def format_result(r: dict) -> str:
         lines.append("| alpha-lambda of an oracle knowing each unit's law, life and volatility (lambda "
                      + " / ".join(o) + ") | " + " / ".join(f"{v['fraction']:.0%}" for v in o.values())
                      + " | - | - |")
+        for key, label in (("law_and_shape_known", "law and its shape parameter known, onset and life fitted to the "
+                                                   "unit's own diagnoses"),
+                           ("law_known", "law known (shape at mid-range), onset and life fitted")):
+            if key in r["oracle"]:
+                o = r["oracle"][key]
+                lines.append(f"| alpha-lambda of a predictor with the {label} (lambda " + " / ".join(o) + ") | "
+                             + " / ".join(f"{v['fraction']:.0%}" for v in o.values()) + " | - | - |")
     for key, label in (("ph_fraction_median", "prognostic horizon / life, median (first entry)"),
                        ("ph_stay_fraction_median", "prognostic horizon / life, median (stays in band)"),
                        ("ra_median", "relative accuracy, median over points"),

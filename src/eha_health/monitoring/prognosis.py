@@ -18,6 +18,7 @@ that P(failure before the next check) calls for.
 from __future__ import annotations
 
 import math
+import sqlite3
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -94,8 +95,8 @@ class PrognosisStep:
                         obj = prognose(hist, self.actuator_id, self.next_check_h, self.settings,
                                        priors=self._fleet_priors(st, hist))
                         out.prognosis = obj["actuators"][self.actuator_id]
-            except PrognosticsError as e:   # an unreadable history file
-                out.error = str(e)
+            except (PrognosticsError, sqlite3.Error, OSError) as e:   # an unreadable, locked or full history file
+                out.error = str(e) if isinstance(e, PrognosticsError) else f"history {self.history}: {e}"
             return out
 
     def level(self, outcome: Outcome) -> tuple[str, str | None]:
