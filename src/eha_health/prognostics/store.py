@@ -1,6 +1,6 @@
 """Health history: every diagnosis of every actuator, in one SQLite file (WAL, transactions).
 
-CLI wiring (after the merge): ``eha-health history add RUN.csv|BAG.mcap --actuator ID
+CLI (:mod:`eha_health.cli.prognostics`): ``eha-health history add RUN.csv|BAG.mcap --actuator ID
 [--time-h T] [--usage U]`` -> :meth:`HistoryStore.add_diagnosis`; ``history list
 [--actuator ID] [--json]`` -> :meth:`HistoryStore.list_tests`; ``history import FILE.csv`` ->
 :meth:`HistoryStore.import_csv`; ``history repair --actuator ID --fault gm|fsj|bkl|all
