@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..io.bagrun import read_run
+from ..io.bagrun import HISTORY_META, read_run
 from ..io.mcaplog import bag_metadata
 from ..physics.faults import FAULT_NAMES
 from ..signals.response import Response
@@ -28,9 +28,8 @@ MANIFEST_REQUIRED = ("actuator_id", "time_h", "path")
 MANIFEST_NAME = "manifest.csv"
 #: Bag metadata record with the actuator id (the live monitor writes it; so does ``fleet simulate``).
 META_RECORD = "eha_health"
-#: Bag metadata record with the operating time [h] and usage of test window <id> (the convention of the
-#: history CLI of issue 16, ``io.bagrun.HISTORY_META`` on its branch: use that one after the merge).
-HISTORY_META = "history/test_{}"
+#: HISTORY_META (io.bagrun): the record with the operating time [h] and usage of test window <id>,
+#: the history CLI's and the monitor's.
 SUFFIXES = (".mcap", ".csv")
 
 

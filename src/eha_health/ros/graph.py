@@ -43,12 +43,13 @@ class Graph:
     executor : 'single' (``SingleThreadedExecutor``) or 'events' (``EventsExecutor``).
     truth : write the plant's fault parameters into the log metadata (False: an
         "undeclared" recording whose truth stays with whoever made it).
+    monitor_params : more monitor parameters by name (e.g. ``history``, ``operating_hours``).
     """
 
     def __init__(self, faults: Faults = Faults(), effects: tuple[str, ...] = (), seed: int = 0, rate: float = 0.0,
                  method: str = DEFAULT_METHOD, fitness: str = "lsq", monitor_seed: int = 0, log_path: str | Path = "",
                  executor: str = "single", actuator_id: str = "eha", namespace: str = "", truth: bool = True,
-                 params_file: str = "", discrepancy: bool = False):
+                 params_file: str = "", discrepancy: bool = False, monitor_params: dict | None = None):
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, signal_handler_options=SignalHandlerOptions.NO)
         P = Parameter
@@ -66,7 +67,8 @@ class Graph:
             self.monitor = MonitorNode(context=self.ctx, parameter_overrides=[
                 P("method", value=method), P("fitness", value=fitness), P("seed", value=int(monitor_seed)),
                 P("log_path", value=str(log_path)), P("plant_node", value=plant_fqn if truth else ""),
-                P("actuator_id", value=actuator_id), P("discrepancy", value=bool(discrepancy))], **ns)
+                P("actuator_id", value=actuator_id), P("discrepancy", value=bool(discrepancy)),
+                *(P(k, value=v) for k, v in (monitor_params or {}).items())], **ns)
             self.nodes = [self.plant, self.command, self.monitor]
             if executor == "events":
                 self.ex = EventsExecutor(context=self.ctx)
@@ -116,6 +118,17 @@ class Graph:
                 raise ValueError(f"plant refused the parameters: {'; '.join(bad)}")
         finally:
             self.monitor.destroy_client(client)
+
+    def listen(self, topic, node_name: str) -> list:
+        """Messages of contract ``topic`` received by a new, independent node on this executor (the list fills
+        as the graph spins; a latched topic delivers its last message to it)."""
+        from . import msg_class, qos
+        node = rclpy.create_node(node_name, context=self.ctx)
+        got: list = []
+        node.create_subscription(msg_class(topic), topic.name, got.append, qos(topic))
+        self.nodes.append(node)
+        self.ex.add_node(node)
+        return got
 
     # ---------------------------------------------------------------- teardown
     def close(self) -> None:
