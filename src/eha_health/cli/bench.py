@@ -1,4 +1,4 @@
-"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy, rul)."""
+"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy, rul, fleet)."""
 from __future__ import annotations
 
 import json
@@ -69,6 +69,11 @@ def bench_paper(args) -> int:
     return 0
 
 
+def _plot(args, default: str) -> str | None:
+    """The --plot file of a bench: its default when not given, none when given as ''."""
+    return default if args.plot is None else (args.plot or None)
+
+
 def bench_rul(args) -> int:
     from ..bench.rul import bench_rul as run, format_result, time_prognose, write_markdown
     from ..prognostics.config import load_settings
@@ -83,15 +88,29 @@ def bench_rul(args) -> int:
         raise UsageError(f"--units must be >= 3 (one per fault), got {args.units}")
     over = {"bench": {k: v for k, v in (("n_units", args.units), ("seed", args.seed)) if v is not None}}
     s = load_settings(args.settings, over)
-    res = run(s, args.cache, args.plot or None, progress(args))
+    res = run(s, args.cache, _plot(args, "out/bench_rul.png"), progress(args))
     if args.markdown:
         write_markdown(res, args.markdown, "eha-health " + " ".join(args.raw))
     print(json.dumps(res, indent=1, default=float) if args.json else format_result(res))
     return 0
 
 
+def bench_fleet(args) -> int:
+    from ..bench.fleet import bench_fleet as run, format_bench
+    from ..identification.diagnose import DEFAULT_METHOD, METHODS
+    method = DEFAULT_METHOD if args.method == "all" else args.method
+    if method not in METHODS:
+        raise UsageError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    if args.tests < 2:
+        raise UsageError(f"--tests must be >= 2, got {args.tests}")
+    res = run(n_tests=args.tests, method=method, fmt=args.format, seed=args.seed or 17,
+              plot=_plot(args, "out/bench_fleet.png"), all_cores_serial=args.serial_all_cores, progress=progress(args))
+    print(json.dumps(res, indent=2, default=float) if args.json else format_bench(res))
+    return 0
+
+
 BENCHES = {"speed": bench_speed, "paper": bench_paper, "graph": bench_graph, "floor": bench_floor,
-           "discrepancy": bench_discrepancy, "rul": bench_rul}
+           "discrepancy": bench_discrepancy, "rul": bench_rul, "fleet": bench_fleet}
 
 
 def cmd_bench(args) -> int:
@@ -104,16 +123,22 @@ def register(sub) -> None:
     b = sub.add_parser("bench", help="benchmarks: " + " | ".join(BENCHES),
                        parents=[fitness_option("paper: fitness function"), json_flag(), quiet_flag()])
     b.add_argument("what", help="speed, paper, graph, floor (the monitor's residual floor), discrepancy "
-                                "(the loop on synthetic undeclared effects) or rul (run-to-failure fleet: prognostics)")
+                                "(the loop on synthetic undeclared effects), rul (run-to-failure fleet: prognostics) or fleet (Dask throughput)")
     b.add_argument("--write", metavar="YAML", help="floor: write the settings file, e.g. src/eha_health/data/discrepancy.yaml")
     b.add_argument("--rate", type=float, default=0.0, help="graph: command playback speed (0 as fast as possible)")
     b.add_argument("--no-compile", action="store_true", help="speed: skip the fresh-process compile-time measurement")
-    b.add_argument("--method", default="all", help="paper: deterministic, ga, hybrid or all")
+    b.add_argument("--method", default="all", help="paper: deterministic, ga, hybrid or all; fleet: the "
+                                                   "diagnosis method (all: the default method)")
     b.add_argument("--noise", action="store_true", help="paper: default sensor noise on the reference runs")
     b.add_argument("--random", type=int, default=0, metavar="N",
                    help="paper: add N random K triples in [0,1]^3; floor: runs (12); discrepancy: noise-only runs (6)")
     b.add_argument("--seed", type=int, default=None, help="paper: seed of random cases, noise and GA (0); "
-                                                          "rul: fleet seed (bench.seed of data/prognostics.yaml)")
+                                                          "rul: fleet seed (bench.seed of data/prognostics.yaml); "
+                                                          "fleet: seed of the simulated fleet (17)")
+    b.add_argument("--tests", type=int, default=60, help="fleet: recordings diagnosed by each configuration (60)")
+    b.add_argument("--format", choices=("mcap", "csv"), default="mcap", help="fleet: recording format (mcap)")
+    b.add_argument("--serial-all-cores", action="store_true",
+                   help="fleet: also time the serial loop with numba on all cores")
     b.add_argument("--no-de", action="store_true", help="paper: skip the scipy differential_evolution peer")
     b.add_argument("--markdown", help="paper: write the tables to this Markdown file; rul: write the figures into "
                                       "this file (between its 'bench rul' markers if it has them, e.g. "
@@ -121,7 +146,8 @@ def register(sub) -> None:
     b.add_argument("--units", type=int, help="rul: fleet size (bench.n_units of data/prognostics.yaml)")
     b.add_argument("--settings", metavar="YAML", help="rul: a YAML merged over data/prognostics.yaml")
     b.add_argument("--cache", default="out/rul_cache", help="rul: diagnosis cache directory (out/rul_cache)")
-    b.add_argument("--plot", default="out/bench_rul.png", help="rul: PNG of example units and the PIT ('' none)")
+    b.add_argument("--plot", help="rul: PNG of example units and the PIT (out/bench_rul.png); fleet: PNG of the "
+                                  "figures (out/bench_fleet.png); '' for none")
     b.add_argument("--time-prognose", type=int, metavar="N",
                    help="rul: only time prognose on a synthetic N-actuator history (every fault degrading)")
     b.add_argument("--write-model-error", metavar="YAML",
