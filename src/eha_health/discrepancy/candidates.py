@@ -25,21 +25,48 @@ mount_compliance       compliance in series with the link (soft mount)    m/N
 flow_asymmetry         extend/retract gain asymmetry of valve and jack    -
 vibration_null_shift   null bias k <|a|> + b0 (shift under vibration)     A s^2/m, A
 =====================  =================================================  ============
+
+These act *in the loop* (the controller sees them; they move the actuator). The
+*recording* candidates (:data:`RECORDING`) are generated from the channel list
+(:data:`~eha_health.signals.channels.MEASURED`): for every measured channel an offset,
+a scale error, a time skew against the command and a first-order sensor lag
+(:mod:`~eha_health.signals.recording`), named ``<channel>_<kind>``. They change the
+recorded output only: the other channels do not show them, which is the evidence that
+tells ``position_skew`` from the in-loop ``sensor_delay``, or ``position_offset`` from
+``sensor_bias`` (the loop holds the surface off by a feedback bias, and the hinge
+load -- the pressure -- shows it).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from ..identification.knobs import Knob
+from ..identification.residual import CHANNEL_COLUMNS, CHANNEL_SCALES
 from ..physics.params import ModelParams
+from ..signals import recording
+from ..signals.channels import MEASURED, UNITS
+
+IN_LOOP, RECORDING_CHAIN = "in-loop", "recording"
 
 
 @dataclass(frozen=True)
 class Candidate:
-    """A missing-effect hypothesis: a mechanism and the knobs that size it."""
+    """A missing-effect hypothesis: a mechanism and the knobs that size it.
+
+    ``kind`` is :data:`IN_LOOP` (changes the model, needs a simulation) or
+    :data:`RECORDING_CHAIN` (transforms the recorded ``channel`` of a simulation's output).
+    """
     name: str
     mechanism: str
     knobs: tuple[Knob, ...]
+    kind: str = IN_LOOP
+    channel: str | None = None
+
+    def applies_to(self, channels) -> bool:
+        """A recording effect needs its channel in the record."""
+        return self.channel is None or self.channel in channels
 
 
 def _compressibility(p: ModelParams, compliance: float) -> ModelParams:
@@ -136,4 +163,45 @@ CANDIDATES: tuple[Candidate, ...] = (
                     lambda p, v: p.updated("controller", null_bias=v), doc="null bias at rest"))),
 )
 
+def _recorded(channel: str, kind: str):
+    col, fn = CHANNEL_COLUMNS[channel], recording.APPLY[kind]
+
+    def output(out: np.ndarray, value: float, rate: float) -> np.ndarray:
+        out = out.copy()
+        out[:, col] = fn(out[:, col], value, rate)
+        return out
+    return output
+
+
+#: Sizes of the recording effects: (lower, upper, typical) per kind; an offset in the channel's
+#: residual scale (position 0.1 mm, pressure 0.5 MPa, ...).
+RECORDING_SIZES = {"offset": (-50.0, 50.0, 1.0), "scale": (-0.3, 0.3, 0.02), "skew": (-0.02, 0.02, 1e-3),
+                   "lag": (0.0, 0.02, 1e-3)}
+_RECORDING_DOCS = {
+    "offset": "offset of the recorded {c} (transducer zero, amplifier offset)",
+    "scale": "scale error of the recorded {c} (transducer calibration, amplifier gain)",
+    "skew": "time skew of the recorded {c} against the command (logger channel timing), either sign",
+    "lag": "first-order lag of the {c} transducer or its anti-alias filter"}
+
+
+def recording_candidates(channels=MEASURED) -> tuple[Candidate, ...]:
+    """The measurement-chain candidates of ``channels``: offset, scale, skew, lag of each."""
+    out = []
+    for c in channels:
+        for kind in recording.KINDS:
+            lo, hi, typ = RECORDING_SIZES[kind]
+            unit = UNITS[c] if recording.UNIT[kind] == "channel" else recording.UNIT[kind]
+            if kind == "offset":
+                lo, hi, typ = (v * CHANNEL_SCALES[c] for v in (lo, hi, typ))
+            out.append(Candidate(f"{c}_{kind}", _RECORDING_DOCS[kind].format(c=c),
+                                 (Knob(f"{c}_{kind}", unit, lo, hi, typ, 0.0, output=_recorded(c, kind),
+                                       doc=_RECORDING_DOCS[kind].format(c=c)),),
+                                 RECORDING_CHAIN, c))
+    return tuple(out)
+
+
+#: In-loop physics and every measured channel's recording chain.
+IN_LOOP_CANDIDATES = CANDIDATES
+RECORDING = recording_candidates()
+CANDIDATES = IN_LOOP_CANDIDATES + RECORDING
 BY_NAME = {c.name: c for c in CANDIDATES}

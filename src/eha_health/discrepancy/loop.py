@@ -42,7 +42,8 @@ from ..physics.params import ModelParams, load
 from ..physics.sequence import FDISequence
 from ..signals.residuals import ResidualAnalysis, analyse, rest_noise_level
 from .candidates import CANDIDATES, Candidate
-from .evidence import Result, Round, evaluate, rank, rediagnosed, rescan, retry_from_rediagnosis
+from .evidence import (Result, Round, evaluate, rank, rediagnosed, rescan, retry_from_rediagnosis, screen, screened,
+                       sparse_order)
 from .report import NO_MISSING_EFFECT, UNEXPLAINED, DiscrepancyReport, State
 from .settings import Settings, fdi_settings
 
@@ -114,15 +115,13 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
             break
         rnd = Round(number, model, base, split.r_fit, r_held, out_base, settings, held_noise, tuple(selected))
         anchors = [base.x] if number > 1 else [base.x, before.x]
-        results: list[Result] = []
-        for i, cand in enumerate(remaining):
-            say(f"round {number}: candidate {i + 1}/{len(remaining)} {cand.name}")
-            results.append(evaluate(rnd, cand, anchors))
-            runs += results[-1].model.runs
-        results.sort(key=rank)
+        results = _round(rnd, remaining, anchors, say)
+        runs += sum(r.model.runs for r in results)
+        refitted = [r for r in results if r.evidence.refit]
         if number == 1 and structured and rediagnose is not None and not rnd.passes(results[0].evidence, structured):
-            results, spent = retry_from_rediagnosis(rnd, results, remaining, before, rediagnose, say)
+            refitted, spent = retry_from_rediagnosis(rnd, refitted, remaining, before, rediagnose, say)
             runs += spent
+            results = refitted + [r for r in results if not r.evidence.refit]
             results.sort(key=rank)
         evidence += [r.evidence for r in results]
         top = results[0]
@@ -142,8 +141,45 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
         remaining = [c for c in remaining if c.name != top.evidence.name]
         res = split.analyse(top.fit.output, selected)
         structured = res.structured
-        say(f"selected {top.evidence.name}; residual now {res.verdict}")
+        say(f"selected {top.evidence.name}; residual now {res.verdict} ({runs + model.runs} model runs)")
     return model, base, out_base, selected, evidence, runs
+
+
+def _round(rnd: Round, remaining: list[Candidate], anchors, say) -> list[Result]:
+    """One round's evidence: every candidate screened (signature, projection, coarse scan: one
+    batch each, and a recording effect's scan shares one simulation), the best few refitted in
+    full, the others judged at their screened point. Sorted by :func:`~.evidence.rank`."""
+    st = rnd.settings
+    say(f"round {rnd.number}: screening {len(remaining)} candidates")
+    screens = [screen(rnd, c, st.scan) for c in remaining]
+    sparse = sparse_order(rnd.base.jacobian, screens, rnd.base.residual)
+    by_fit = sorted(screens, key=lambda sc: sc.fit_cost)
+    full = {sc.candidate.name for sc in by_fit[:st.refits]} | set(sparse[:st.sparse_refits])
+    results: list[Result] = []
+    for i, sc in enumerate(by_fit):
+        name = sc.candidate.name
+        if name in full:
+            say(f"round {rnd.number}: refit {sum(r.evidence.refit for r in results) + 1}/{len(full)} {name}")
+            res = evaluate(rnd, sc.candidate, anchors, sc)
+        else:
+            res = screened(rnd, sc, f"screen: fit x{sc.fit_cost / max(rnd.base.cost, 1e-300):.3f} at its best "
+                                    f"scanned point, rank {i + 1} of {len(screens)}; projection {sc.projection:.2f}; "
+                                    f"not in the first {st.sparse_refits} of the sparse regression")
+        if name in sparse:
+            res.evidence.sparse_rank = sparse.index(name) + 1
+        results.append(res)
+    results.sort(key=rank)
+    while not results[0].evidence.refit:
+        # a pruned candidate ranks first on its screened point: it gets its full refit (only a
+        # refitted model can become the next round's base)
+        top = results[0]
+        sc = next(s for s in screens if s.candidate.name == top.evidence.name)
+        say(f"round {rnd.number}: refit {sc.candidate.name} (ranked first after screening)")
+        new = evaluate(rnd, sc.candidate, anchors, sc)
+        new.evidence.sparse_rank = top.evidence.sparse_rank
+        results[0] = new
+        results.sort(key=rank)
+    return results
 
 
 def _final_fit(split: _Split, model: KnobModel, base: FitResult, n_base: int, rediagnose) -> tuple[FitResult, int]:
@@ -205,12 +241,14 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     base = least_squares(Problem(model, split.r_fit), before.x)
     res_before = split.analyse(before.output, [])
     state_before = split.state(before, base.output, [], truth)
-    say(f"residual: {res_before.verdict}")
+    say(f"residual: {res_before.verdict} ({model.runs} model runs, {time.perf_counter() - t0:.1f} s)")
+    candidates = [c for c in candidates if c.applies_to(record.channels)]
 
     model, base, out_base, selected, evidence, runs = _attribute(
         split, model, before, base, res_before, candidates, max_effects, rediagnose, say)
     after, res_after = before, res_before
     if selected:
+        say("final fit of every knob with the selected effects")
         after, spent = _final_fit(split, model, base, len(base_knobs), rediagnose)
         runs += spent
         res_after = split.analyse(after.output, selected)

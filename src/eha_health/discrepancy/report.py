@@ -31,6 +31,11 @@ class CandidateEvidence:
     std: dict[str, float]
     units: dict[str, str]
     selected: bool = False
+    kind: str = "in-loop"         # 'in-loop' (changes the model) or 'recording' (changes a recorded channel)
+    channel: str | None = None    # the recorded channel of a recording effect
+    refit: bool = True            # False: pruned after the cheap evidence, judged at its screened point
+    pruned_by: str = ""           # the evidence that pruned it
+    sparse_rank: int | None = None  # order of entry in the sparse regression of the residual (1 = first)
 
 
 @dataclass
