@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from eha_health import simulate
-from eha_health.discrepancy.candidates import BY_NAME, CANDIDATES
+from eha_health.discrepancy.candidates import BY_NAME, CANDIDATES, IN_LOOP_CANDIDATES
 from eha_health.discrepancy.evidence import projection_share
 from eha_health.discrepancy.loop import analyse_fdi_test
 from eha_health.discrepancy.report import NO_MISSING_EFFECT, UNEXPLAINED
@@ -205,7 +205,9 @@ def test_fit_never_returns_worse_than_its_start():
 
 def test_settings_floor_grows_with_the_effects_added():
     st = fdi_settings()
-    assert set(st.effect_floor) == {c.name for c in CANDIDATES}   # bench floor measured every candidate
+    # bench floor measured every in-loop candidate; a recording effect changes no simulated physics
+    assert set(st.effect_floor) == {c.name for c in IN_LOOP_CANDIDATES}
+    assert st.floor_with(["pressure_offset"]) == st.floor
     base = st.floor_with([])
     assert base == st.floor
     both = st.floor_with(["compressibility", "sensor_delay"])
@@ -218,7 +220,7 @@ def test_candidate_library_covers_the_mechanisms():
     assert {"compressibility", "sensor_delay", "sensor_bias", "sensor_gain", "supply_pressure", "viscous_friction",
             "stribeck", "valve_null_bias", "load_stiffness", "leakage"} <= names
     p = load("monitor")
-    for c in CANDIDATES:   # off leaves the model as it is; every knob value in range builds a valid model
+    for c in IN_LOOP_CANDIDATES:   # off leaves the model as it is; every knob value in range builds a valid model
         for k in c.knobs:
             assert k.lo <= k.typical <= k.hi
             k.apply(p, k.typical)

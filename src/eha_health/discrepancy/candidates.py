@@ -184,6 +184,18 @@ _RECORDING_DOCS = {
     "lag": "first-order lag of the {c} transducer or its anti-alias filter"}
 
 
+def corrected(response, model, x):
+    """A copy of ``response`` with the recording effects of ``model`` at ``x`` undone on its channels
+    (what a re-identification with those effects in the model must fit)."""
+    import copy
+    r = copy.copy(response)
+    for k, v in zip(model.knobs, np.asarray(x, float)):
+        if k.recording and v != k.off:
+            c, kind = k.name.rsplit("_", 1)
+            setattr(r, c, recording.undo(kind, np.asarray(getattr(r, c), float), float(v), response.sample_rate))
+    return r
+
+
 def recording_candidates(channels=MEASURED) -> tuple[Candidate, ...]:
     """The measurement-chain candidates of ``channels``: offset, scale, skew, lag of each."""
     out = []

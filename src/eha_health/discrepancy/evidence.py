@@ -1,5 +1,8 @@
-"""The evidence for one candidate effect: projection on its signature, then a held-out refit.
+"""The evidence for one candidate effect: cheap screening, then (for the best few) a held-out refit.
 
+* *screen* (:func:`screen`): the candidate's signature, projection share, a coarse scan of its
+  first knob and the linearised fit, in one batch of runs (a recording effect's scan: one run);
+  :func:`sparse_order` regresses the residual on every candidate's signature at once;
 * *projection* (:func:`projection_share`): the share of the fit residual that the
   candidate's output sensitivity explains beyond what the base knobs already can,
   ``1 - |P_[J S]^perp r|^2 / |P_J^perp r|^2`` (J: base-knob Jacobian, S: the candidate's
@@ -269,15 +272,15 @@ def rediagnosed(model: KnobModel, x: np.ndarray, n_base: int, rediagnose) -> tup
 
     Returns the new knob vector and the model runs the identification took.
     """
-    xb, spent = rediagnose(model.params_at(x)[0])
+    xb, spent = rediagnose(model, x)
     alt = np.array(x, float)
     alt[:n_base] = np.clip(xb, model.lower[:n_base], model.upper[:n_base])
     return alt, spent
 
 
-def retry_from_rediagnosis(rnd: Round, results: list[Result], candidates, before: FitResult, rediagnose,
-                           say) -> tuple[list[Result], int]:
-    """Round-1 candidates evaluated again from the base knobs re-identified with each in the model.
+def retry_from_rediagnosis(rnd: Round, results: list[Result], candidates, anchors: list[np.ndarray], n_base: int,
+                           rediagnose, say) -> tuple[list[Result], int]:
+    """Candidates evaluated again from the ``n_base`` base knobs re-identified with each in the model.
 
     Only a candidate whose re-identified model (its first knob at its typical value, any other
     absent) lowers the fit-part residual power to the fit gate is evaluated again (the others
@@ -289,14 +292,17 @@ def retry_from_rediagnosis(rnd: Round, results: list[Result], candidates, before
     out, runs = [], 0
     for res in results:
         cand = by_name[res.evidence.name]
-        say(f"round 1: {cand.name} -- base re-identified with it in the model")
-        probe = [k.typical if j == 0 else k.off for j, k in enumerate(cand.knobs)]
-        x, spent = rediagnosed(res.model, np.concatenate([rnd.base.x, probe]), nb, rediagnose)
+        say(f"round {rnd.number}: {cand.name} -- base re-identified with it in the model")
+        # the probe: an in-loop knob at its typical value; a recording effect at its refitted size
+        # (the data are corrected by it)
+        k0 = cand.knobs[0]
+        probe = [res.evidence.parameters[k0.name] if k0.recording else k0.typical] + [k.off for k in cand.knobs[1:]]
+        x, spent = rediagnosed(res.model, np.concatenate([rnd.base.x, probe]), n_base, rediagnose)
         runs += spent + 1
         if rnd.r_fit.cost(res.model.run(x)[0]) > rnd.settings.fit_ratio * rnd.base.cost:
             out.append(res)
             continue
-        new = evaluate(rnd, cand, [rnd.base.x, before.x, x[:nb]])
+        new = evaluate(rnd, cand, list(anchors) + [x[:nb]])
         runs += new.model.runs
         out.append(new if rank(new) < rank(res) else res)
     return out, runs

@@ -48,3 +48,19 @@ def lag(y: np.ndarray, tau: float, rate: float) -> np.ndarray:
 
 
 APPLY = {"offset": offset, "scale": scale, "skew": skew, "lag": lag}
+
+
+def undo(kind: str, y: np.ndarray, value: float, rate: float) -> np.ndarray:
+    """The signal before the effect ``kind`` of size ``value`` (the recording corrected). The lag's
+    inverse is the discrete filter's exact inverse, which raises white noise by sqrt((1+a)/(1-a))."""
+    if kind == "offset":
+        return y - value
+    if kind == "scale":
+        return y / (1.0 + value)
+    if kind == "skew":
+        return skew(y, -value, rate)
+    if value <= 0.0:
+        return y
+    a = float(np.exp(-1.0 / (rate * value)))
+    return np.concatenate([y[:1], (y[1:] - a * y[:-1]) / (1.0 - a)])
+
