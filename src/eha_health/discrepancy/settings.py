@@ -20,7 +20,7 @@ class Settings:
     starts: int = 2                    # local fits per candidate, from the best distinct grid points
     max_nfev: int = 30                 # iterations of each local fit
     scan: int = 12                     # grid points of an in-loop candidate's screening scan
-    refits: int = 3                    # candidates refitted in full after screening: the best screened,
+    refits: int = 2                    # candidates refitted in full after screening: the best screened,
     sparse_refits: int = 1             # ... and the first of the sparse regression
     floor: dict = field(default_factory=dict)   # per-channel residual floor of the model [SI]
     effect_floor: dict = field(default_factory=dict)  # {candidate: per-channel floor} once it is added
