@@ -166,6 +166,13 @@ def test_structured_residual_no_candidate_explains_is_said_not_hidden():
                            max_effects=1)
     assert rep.residual_before.structured
     assert rep.selected == [] and rep.verdict == UNEXPLAINED
+    # the verdict says where the structure lives and which coefficients it is likely to bias
+    where = rep.unexplained["where"]
+    assert any(w.startswith(c) for w in where for c in rep.residual_before.channels
+               if rep.residual_before.channels[c].structured)
+    shifts = rep.unexplained["segment_shifts"]
+    assert set(shifts) == set(FAULT_NAMES) and all(len(v) == 5 for v in shifts.values())
+    assert rep.unexplained["bias"] and rep.as_dict()["unexplained"] == rep.unexplained
 
 
 def test_same_input_same_report():

@@ -45,3 +45,12 @@ def test_fit_leaves_a_start_on_a_bound(leaky):
     assert 0.0 < f.x[3] < TRUE_LEAK and f.cost < 0.8 * start
     assert list(f.x[:3]) == x0[:3]
     assert np.isfinite(f.std()["extra_leakage"])
+
+
+def test_start_on_upper_bounds_is_accepted(leaky):
+    # (bound - origin) / scale must not round a start on an upper bound outside the solver's box
+    m, res, _ = leaky
+    x0 = list(m.upper)
+    for x in (x0, [0.3, 0.4, 1.5, 0.02 * 5e-12 + 1e-10 - 0.02 * 5e-12]):
+        f = least_squares(Problem(m, res), x, max_nfev=1)
+        assert np.all(f.x <= m.upper) and np.all(f.x >= m.lower)

@@ -79,8 +79,10 @@ def least_squares(problem: Problem, x0, xtol: float = 1e-8, ftol: float = 1e-10,
         # on a rough cost (stick-slip) TRF's trust-region arithmetic can divide by zero; the
         # outcome is checked below, so its RuntimeWarnings are noise on the user's terminal
         warnings.simplefilter("ignore", RuntimeWarning)
-        sol = optimize.least_squares(fun, u0, jac=lambda u: at(u)[2] * scale,
-                                     bounds=((m.lower[free] - origin) / scale, (m.upper[free] - origin) / scale),
+        # x0 lies within the bounds: rounding of (bound - origin) / scale must not put u0 outside
+        lb = np.minimum((m.lower[free] - origin) / scale, u0)
+        ub = np.maximum((m.upper[free] - origin) / scale, u0)
+        sol = optimize.least_squares(fun, u0, jac=lambda u: at(u)[2] * scale, bounds=(lb, ub),
                                      method="trf", x_scale=1.0, xtol=xtol, ftol=ftol, gtol=gtol,
                                      max_nfev=max_nfev)
     x, key = point(sol.x)
