@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from eha_health import simulate
-from eha_health.discrepancy.candidates import BY_NAME, CANDIDATES, IN_LOOP_CANDIDATES
+from eha_health.discrepancy.candidates import BY_NAME, CANDIDATES, IN_LOOP_CANDIDATES, STRUCTURAL
 from eha_health.discrepancy.evidence import projection_share
 from eha_health.discrepancy.loop import analyse_fdi_test
 from eha_health.discrepancy.report import NO_MISSING_EFFECT, UNEXPLAINED
@@ -227,7 +227,7 @@ def test_candidate_library_covers_the_mechanisms():
     assert {"compressibility", "sensor_delay", "sensor_bias", "sensor_gain", "supply_pressure", "viscous_friction",
             "stribeck", "valve_null_bias", "load_stiffness", "leakage"} <= names
     p = load("monitor")
-    for c in IN_LOOP_CANDIDATES:   # off leaves the model as it is; every knob value in range builds a valid model
+    for c in IN_LOOP_CANDIDATES + STRUCTURAL:   # every knob value in range builds a valid model
         for k in c.knobs:
             assert k.lo <= k.typical <= k.hi
             k.apply(p, k.typical)

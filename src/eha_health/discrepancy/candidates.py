@@ -212,6 +212,32 @@ def recording_candidates(channels=MEASURED) -> tuple[Candidate, ...]:
     return tuple(out)
 
 
+def _lead(p: ModelParams, t_d: float) -> ModelParams:
+    """Controller lead: i = kp (e + T_d de/dt), i.e. a derivative gain kd = kp T_d."""
+    return p.updated("controller", kd=p.controller.kp * max(t_d, 0.0))
+
+
+def _first_stage(p: ModelParams, df: float | None = None, dz: float | None = None) -> ModelParams:
+    fs = p.first_stage
+    return p.updated("first_stage", **({"natural_frequency": fs.natural_frequency * (1.0 + df)} if df is not None else {}),
+                     **({"damping_ratio": fs.damping_ratio * (1.0 + dz)} if dz is not None else {}))
+
+
+#: Loop structure a rig's frequency response can ask for beyond its calibration band (the gain
+#: error above it): a lead in the controller and the valve's second-order (first-stage) dynamics.
+#: Offered to rig records (no floor of the FDI monitor was measured with them).
+STRUCTURAL: tuple[Candidate, ...] = (
+    Candidate("controller_lead", "a lead in the position controller: i = kp (e + T_d de/dt); the closed loop's "
+              "gain falls slower with frequency",
+              (Knob("lead_time", "s", 0.0, 0.02, 1e-3, 0.0, _lead, doc="T_d = kd / kp"),)),
+    Candidate("valve_dynamics", "the servovalve's second-order first stage: its natural frequency and damping "
+              "(a resonance near the loop's bandwidth lifts or drops the gain there)",
+              (Knob("valve_frequency_change", "-", -0.9, 3.0, 0.2, 0.0, lambda p, v: _first_stage(p, df=v),
+                    doc="relative change of the first-stage natural frequency"),
+               Knob("valve_damping_change", "-", -0.9, 3.0, 0.2, 0.0, lambda p, v: _first_stage(p, dz=v),
+                    doc="relative change of the first-stage damping ratio"))),
+)
+
 #: In-loop physics and every measured channel's recording chain.
 IN_LOOP_CANDIDATES = CANDIDATES
 RECORDING = recording_candidates()

@@ -18,7 +18,7 @@ from ..identification.knobs import Knob
 from ..identification.record import Record
 from ..physics.params import ModelParams, load
 from ..signals import frequency
-from .candidates import CANDIDATES
+from .candidates import CANDIDATES, STRUCTURAL
 from .loop import quantile_segments, run_loop
 from .report import DiscrepancyReport
 from .settings import Settings
@@ -35,8 +35,9 @@ RIG_KNOBS = (
          apply=lambda p, v: p.updated("jack", viscous=v), doc="jack viscous friction"),
 )
 
-#: Candidates that make sense without the aerodynamic surface and its link.
-RIG_CANDIDATES = tuple(c for c in CANDIDATES if c.name not in ("load_stiffness", "mount_compliance"))
+#: Candidates that make sense without the aerodynamic surface and its link, and the loop
+#: structure a rig's frequency response may ask for (candidates.STRUCTURAL).
+RIG_CANDIDATES = tuple(c for c in CANDIDATES if c.name not in ("load_stiffness", "mount_compliance")) + STRUCTURAL
 
 
 def rig_params(base: ModelParams | None = None, dt: float = 1e-4) -> ModelParams:
