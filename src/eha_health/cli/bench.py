@@ -36,8 +36,16 @@ def bench_floor(args) -> int:
 
 
 def bench_discrepancy(args) -> int:
-    from ..bench.discrepancy import format_synthetic, synthetic
-    res = synthetic(seed=args.seed or 0, n_noise=args.random or 6, progress=progress(args))
+    from ..bench.discrepancy import FAULT_SETS, format_synthetic, synthetic
+    from ..discrepancy.candidates import BY_NAME
+    effects = [e for e in args.effects.split(",") if e] if args.effects else None
+    bad = [e for e in effects or () if e not in BY_NAME]
+    if bad:
+        raise UsageError(f"unknown effect {bad[0]!r}; known: {', '.join(BY_NAME)}")
+    if not 1 <= args.fault_sets <= len(FAULT_SETS):
+        raise UsageError(f"--fault-sets must be within 1..{len(FAULT_SETS)}")
+    res = synthetic(seed=args.seed or 0, n_noise=args.random or 6, progress=progress(args), effects=effects,
+                    fault_sets=FAULT_SETS[:args.fault_sets], two_effects=not args.no_two)
     print(json.dumps(res, indent=2, default=float) if args.json else "\n" + format_synthetic(res))
     return 0
 
@@ -139,6 +147,11 @@ def register(sub) -> None:
     b.add_argument("--format", choices=("mcap", "csv"), default="mcap", help="fleet: recording format (mcap)")
     b.add_argument("--serial-all-cores", action="store_true",
                    help="fleet: also time the serial loop with numba on all cores")
+    b.add_argument("--effects", default="", metavar="A,B",
+                   help="discrepancy: only these candidate effects (default every in-loop and recording one)")
+    b.add_argument("--fault-sets", type=int, default=3, metavar="N",
+                   help="discrepancy: the first N fault sets (0,0,0), (0.4,0.5,0), (0.3,0.4,0.3)")
+    b.add_argument("--no-two", action="store_true", help="discrepancy: skip the two-effect cases")
     b.add_argument("--no-de", action="store_true", help="paper: skip the scipy differential_evolution peer")
     b.add_argument("--markdown", help="paper: write the tables to this Markdown file; rul: write the figures into "
                                       "this file (between its 'bench rul' markers if it has them, e.g. "
