@@ -22,7 +22,6 @@ from collections import Counter, deque
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from rcl_interfaces.msg import ParameterDescriptor
 from rcl_interfaces.srv import GetParameters
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
@@ -38,39 +37,40 @@ from ..io.mcaplog import BagWriter
 from ..monitoring.analysis import analyse_window
 from ..monitoring.health import HealthPolicy, Verdict
 from ..monitoring.windows import WindowTracker
-from ..physics.faults import FAULT_NAMES
+from ..physics.faults import FAULT_NAMES, FAULT_UPPER
 from . import msg_class, qos, run_node
+from .params import INT_MAX, Param, declare
 
 #: How long a window waits for late samples once none arrives [s].
 WINDOW_TIMEOUT_S = 2.0
+
+#: The monitor's parameters (docs/interfaces.md): defaults, units, ranges.
+PARAMS = (
+    Param("actuator_id", "eha", "hardware_id of the diagnostic status"),
+    Param("method", DEFAULT_METHOD, "identification method", choices=tuple(METHODS)),
+    Param("fitness", "lsq", "fitness function", choices=tuple(FITNESSES)),
+    Param("seed", 0, "seed of the identification (GA)", 0, INT_MAX),
+    Param("warn_level", 0.3, "WARN when a coefficient reaches this [-]", 0.0, FAULT_UPPER),
+    Param("error_level", 0.7, "ERROR when a coefficient reaches this [-]", 0.0, FAULT_UPPER),
+    Param("log_path", "auto", "MCAP log file; 'auto' = eha_monitor_<date>.mcap in log_dir; '' = no log"),
+    Param("log_dir", ".", "directory of the 'auto' log"),
+    Param("plant_node", "", "simulated runs: node whose k_* parameters are the truth (into MCAP metadata)"),
+    Param("window_timeout_s", WINDOW_TIMEOUT_S,
+          "after the end mark, wait for late samples until none has come for this long [s]", 0.05, 600.0),
+    Param("diagnostics_period_s", 1.0, "re-publish the status this often [s]", 0.01, 3600.0),
+    Param("exit_after", 0, "stop after this many windows (0: run on)", 0, INT_MAX),
+    Param("discrepancy", False, "after each diagnosis run the discrepancy loop; a structured residual -> WARN "
+          "'model lacks: ...' (or, when no candidate explains it, WARN that the coefficients may be biased)"),
+    Param("discrepancy_max_effects", 1, "most effects the loop may add", 0, 8),
+    Param("request_tests", 0, "ask the command node (eha/start_test) for this many tests, one after each verdict, "
+          "each once every input topic has a matched publisher (0: never ask)", 0, INT_MAX),
+)
 
 
 class MonitorNode(Node):
     def __init__(self, name: str = "eha_monitor", **kw):
         super().__init__(name, **kw)
-        d = ParameterDescriptor
-        self.declare_parameter("actuator_id", "eha", d(description="hardware_id of the diagnostic status"))
-        self.declare_parameter("method", DEFAULT_METHOD, d(description="identification method: " + ", ".join(METHODS)))
-        self.declare_parameter("fitness", "lsq", d(description="fitness function: " + ", ".join(FITNESSES)))
-        self.declare_parameter("seed", 0, d(description="seed of the identification (GA)"))
-        self.declare_parameter("warn_level", 0.3, d(description="WARN when a coefficient reaches this"))
-        self.declare_parameter("error_level", 0.7, d(description="ERROR when a coefficient reaches this"))
-        self.declare_parameter("log_path", "auto", d(
-            description="MCAP log file; 'auto' = eha_monitor_<date>.mcap in log_dir; '' = no log"))
-        self.declare_parameter("log_dir", ".", d(description="directory of the 'auto' log"))
-        self.declare_parameter("plant_node", "", d(
-            description="simulated runs: node whose k_* parameters are the truth (into MCAP metadata)"))
-        self.declare_parameter("window_timeout_s", WINDOW_TIMEOUT_S, d(
-            description="after the end mark, wait for late samples until none has come for this long [s]"))
-        self.declare_parameter("diagnostics_period_s", 1.0, d(description="re-publish the status this often [s]"))
-        self.declare_parameter("exit_after", 0, d(description="stop after this many windows (0: run on)"))
-        self.declare_parameter("discrepancy", False, d(
-            description="after each diagnosis run the discrepancy loop; a structured residual -> WARN 'model lacks: "
-                        "...' (or, when no candidate explains it, WARN that the coefficients may be biased)"))
-        self.declare_parameter("discrepancy_max_effects", 1, d(description="most effects the loop may add"))
-        self.declare_parameter("request_tests", 0, d(
-            description="ask the command node (eha/start_test) for this many tests, one after each verdict, "
-                        "each once every input topic has a matched publisher (0: never ask)"))
+        declare(self, PARAMS)
 
         self.log = self._open_log()
         self.windows = WindowTracker()
