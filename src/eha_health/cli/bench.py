@@ -1,4 +1,4 @@
-"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy)."""
+"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy, fuzz)."""
 from __future__ import annotations
 
 import json
@@ -69,8 +69,24 @@ def bench_paper(args) -> int:
     return 0
 
 
+def bench_fuzz(args) -> int:
+    try:
+        from ..bench.fuzz import TARGETS, format_fuzz, fuzz
+    except ImportError as e:
+        raise UsageError(f"fuzz needs hypothesis (pip install -e '.[test]'): {e}") from None
+    targets = args.target or list(TARGETS)
+    unknown = [t for t in targets if t not in TARGETS]
+    if unknown:
+        raise UsageError(f"unknown fuzz target(s) {', '.join(unknown)}; available: {', '.join(TARGETS)}")
+    if args.examples < 1:
+        raise UsageError("--examples must be >= 1")
+    res = fuzz(targets, examples=args.examples, seed=args.seed, progress=progress(args))
+    print(json.dumps(res, indent=2, default=float) if args.json else format_fuzz(res))
+    return 0 if res["ok"] else 1
+
+
 BENCHES = {"speed": bench_speed, "paper": bench_paper, "graph": bench_graph, "floor": bench_floor,
-           "discrepancy": bench_discrepancy}
+           "discrepancy": bench_discrepancy, "fuzz": bench_fuzz}
 
 
 def cmd_bench(args) -> int:
@@ -91,9 +107,12 @@ def register(sub) -> None:
     b.add_argument("--noise", action="store_true", help="paper: default sensor noise on the reference runs")
     b.add_argument("--random", type=int, default=0, metavar="N",
                    help="paper: add N random K triples in [0,1]^3; floor: runs (12); discrepancy: noise-only runs (6)")
-    b.add_argument("--seed", type=int, default=0, help="paper: seed of random cases, noise and GA")
+    b.add_argument("--seed", type=int, default=0, help="paper: seed of random cases, noise and GA; fuzz: seed")
     b.add_argument("--no-de", action="store_true", help="paper: skip the scipy differential_evolution peer")
     b.add_argument("--markdown", help="paper: write the tables to this Markdown file")
     b.add_argument("--write-model-error", metavar="YAML",
                    help="paper (clean runs): write the measured model-form error, e.g. src/eha_health/data/model_error.yaml")
+    b.add_argument("--target", action="append", metavar="T",
+                   help="fuzz: mcap, importer, csv, history or messages (repeatable; default all)")
+    b.add_argument("--examples", type=int, default=2000, metavar="N", help="fuzz: cases per target (2000)")
     b.set_defaults(func=cmd_bench)

@@ -130,7 +130,13 @@ class MonitorNode(Node):
             if handler is None:
                 return
             try:
-                handler(deserialize_message(data, cls))
+                msg = deserialize_message(data, cls)
+            except Exception as e:   # not CDR of this type (rclpy raises RMWError): logged as received, ignored
+                msg, why = None, f"undecodable: {str(e).split(', at ')[0]}"
+            try:
+                if msg is None:
+                    raise ValueError(why)
+                handler(msg)
             except (ValueError, AttributeError, TypeError) as e:   # one bad message never stops the node
                 self.bad_messages += 1
                 self.get_logger().warning(f"{topic.name}: message ignored ({e})", throttle_duration_sec=1.0)
