@@ -19,6 +19,8 @@ from eha_health.ros.graph import Graph
 from eha_health.ros.launch import launch
 from eha_health.ros.replay import replay
 
+pytestmark = pytest.mark.graph
+
 TOL = 0.01
 
 

@@ -21,7 +21,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
 
-from eha_health.ros import command, monitor, plant, replay, teardown
+from eha_health.ros import command, monitor, plant, relay, replay, teardown
 from eha_health.ros.params import markdown_table
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -90,12 +90,12 @@ NODES = {"plant": (plant.PlantNode, plant.PARAMS), "command": (command.CommandNo
 
 def test_every_numeric_parameter_has_a_documented_range():
     docs = (ROOT / "docs" / "interfaces.md").read_text()
-    for table in (plant.PARAMS, command.PARAMS, monitor.PARAMS, replay.PARAMS):
+    for table in (plant.PARAMS, command.PARAMS, monitor.PARAMS, replay.PARAMS, relay.PARAMS):
         for p in table:
             numeric = isinstance(p.default, (int, float)) and not isinstance(p.default, bool)
             assert not numeric or (p.lo is not None and p.lo <= p.default <= p.hi), p.name
             assert not p.choices or p.default in p.choices, p.name
-    for mod in (plant, command, monitor, replay):
+    for mod in (plant, command, monitor, replay, relay):
         assert markdown_table(mod.PARAMS) in docs, f"{mod.__name__}: parameter table of docs/interfaces.md is stale"
 
 

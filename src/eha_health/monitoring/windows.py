@@ -85,10 +85,11 @@ class WindowTracker:
             out.append(self.queue.popleft())
         return out
 
-    def assemble(self, w: Window) -> Response:
-        """The window's response; ``WindowError`` (a ``ValueError``) names what is wrong with it."""
+    def assemble(self, w: Window, max_fill: int = 0) -> Response:
+        """The window's response (lost samples filled up to runs of ``max_fill``); ``WindowError``
+        (a ``ValueError``; ``IncompleteWindow`` when a channel stopped) names what is wrong with it."""
         chans = {c: Samples.of(list(b)) for c, b in self.buffers.items()}
-        w.response = assemble(chans, w.start, w.end, meta={"test_id": w.id})
+        w.response = assemble(chans, w.start, w.end, meta={"test_id": w.id}, max_fill=max_fill)
         return w.response
 
     def forget(self, test_id: int) -> None:

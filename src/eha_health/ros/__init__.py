@@ -21,9 +21,10 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from msg_bridge.contract import Topic
 
 
-def qos(topic: Topic):
-    """RELIABLE, KEEP_LAST(depth), TRANSIENT_LOCAL when latched."""
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=topic.depth, reliability=ReliabilityPolicy.RELIABLE,
+def qos(topic: Topic, best_effort: bool = False):
+    """RELIABLE (BEST_EFFORT for a lossy link), KEEP_LAST(depth), TRANSIENT_LOCAL when latched."""
+    rel = ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=topic.depth, reliability=rel,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if topic.latched else DurabilityPolicy.VOLATILE)
 
 

@@ -151,9 +151,12 @@ class CommandNode(Node):
         else:
             acked = int(np.searchsorted(stamps, self._echo_ns, "right"))
             due = min(n, acked + int(self.get_parameter("max_in_flight").value))
-            if due == T["k"]:   # nothing acknowledged: is anyone answering?
+            if due <= T["k"]:   # nothing new acknowledged: is anyone answering?
+                due = T["k"]    # never back: what is sent is sent
                 self._stall_since = self._stall_since or time.monotonic()
                 if time.monotonic() - self._stall_since > 5.0:
+                    # (measured: this used to step back to the last acknowledged sample and wait
+                    # 5 s again, so a test whose plant was killed took ~90 s to finish)
                     self.get_logger().warning("no plant answers for 5 s: playing on without flow control",
                                               throttle_duration_sec=5.0)
                     due = min(n, T["k"] + int(self.get_parameter("max_in_flight").value))

@@ -25,6 +25,7 @@ from . import teardown
 from .command import CommandNode
 from .monitor import MonitorNode
 from .plant import PlantNode
+from .relay import RELAYED, LossyRelayNode, upstream
 
 
 class GraphTimeout(RuntimeError):
@@ -43,31 +44,47 @@ class Graph:
     executor : 'single' (``SingleThreadedExecutor``) or 'events' (``EventsExecutor``).
     truth : write the plant's fault parameters into the log metadata (False: an
         "undeclared" recording whose truth stays with whoever made it).
+    loss : a :class:`~eha_health.ros.relay.LossyRelayNode` between plant and monitor dropping this
+        fraction of the samples (None: no relay); ``loss_seed`` seeds it, ``best_effort`` makes the
+        link (relay publisher and monitor subscriptions) BEST_EFFORT.
+    max_fill : the monitor's ``max_fill_samples`` (gap fill; 0 refuses any gap).
+    plant : False runs no plant in this process (one in another process, e.g. to kill it).
     """
 
     def __init__(self, faults: Faults = Faults(), effects: tuple[str, ...] = (), seed: int = 0, rate: float = 0.0,
                  method: str = DEFAULT_METHOD, fitness: str = "lsq", monitor_seed: int = 0, log_path: str | Path = "",
                  executor: str = "single", actuator_id: str = "eha", namespace: str = "", truth: bool = True,
-                 params_file: str = "", discrepancy: bool = False):
+                 params_file: str = "", discrepancy: bool = False, loss: float | None = None, loss_seed: int = 0,
+                 best_effort: bool = False, max_fill: int = 0, plant: bool = True):
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, signal_handler_options=SignalHandlerOptions.NO)
         P = Parameter
         ns = {"namespace": namespace} if namespace else {}
         self.nodes = []
+        # with a relay the plant (and the command node's flow control) use the upstream topics
+        lossy = {"cli_args": ["--ros-args", *(a for t in RELAYED for a in ("-r", f"{t.name}:={upstream(t)}"))]} \
+            if loss is not None else {}
+        self.plant = self.relay = None
         try:
-            self.plant = PlantNode(context=self.ctx, parameter_overrides=[
-                P("k_gm", value=float(faults.k_gm)), P("k_fsj", value=float(faults.k_fsj)),
-                P("k_bkl", value=float(faults.k_bkl)), P("effects", value=list(effects) or [""]),
-                P("seed", value=int(seed)), P("actuator_id", value=actuator_id),
-                P("params_file", value=str(params_file))], **ns)
+            if plant:
+                self.plant = PlantNode(context=self.ctx, parameter_overrides=[
+                    P("k_gm", value=float(faults.k_gm)), P("k_fsj", value=float(faults.k_fsj)),
+                    P("k_bkl", value=float(faults.k_bkl)), P("effects", value=list(effects) or [""]),
+                    P("seed", value=int(seed)), P("actuator_id", value=actuator_id),
+                    P("params_file", value=str(params_file))], **ns, **lossy)
             self.command = CommandNode(context=self.ctx, parameter_overrides=[
-                P("rate", value=float(rate)), P("actuator_id", value=actuator_id)], **ns)
-            plant_fqn = self.plant.get_fully_qualified_name()
+                P("rate", value=float(rate)), P("actuator_id", value=actuator_id)], **ns, **lossy)
+            if loss is not None:
+                self.relay = LossyRelayNode(context=self.ctx, parameter_overrides=[
+                    P("drop_fraction", value=float(loss)), P("seed", value=int(loss_seed)),
+                    P("best_effort", value=bool(best_effort))], **ns)
+            plant_fqn = self.plant.get_fully_qualified_name() if plant else ""
             self.monitor = MonitorNode(context=self.ctx, parameter_overrides=[
                 P("method", value=method), P("fitness", value=fitness), P("seed", value=int(monitor_seed)),
                 P("log_path", value=str(log_path)), P("plant_node", value=plant_fqn if truth else ""),
-                P("actuator_id", value=actuator_id), P("discrepancy", value=bool(discrepancy))], **ns)
-            self.nodes = [self.plant, self.command, self.monitor]
+                P("actuator_id", value=actuator_id), P("discrepancy", value=bool(discrepancy)),
+                P("best_effort", value=bool(best_effort)), P("max_fill_samples", value=int(max_fill))], **ns)
+            self.nodes = [n for n in (self.plant, self.command, self.relay, self.monitor) if n is not None]
             if executor == "events":
                 self.ex = EventsExecutor(context=self.ctx)
             elif executor == "single":

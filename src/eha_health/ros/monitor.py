@@ -34,6 +34,7 @@ from msg_bridge import convert as cv
 from ..identification.diagnose import DEFAULT_METHOD, METHODS
 from ..identification.fitness import FITNESSES
 from ..io.mcaplog import BagWriter
+from ..io.window import IncompleteWindow
 from ..monitoring.analysis import analyse_window
 from ..monitoring.health import HealthPolicy, Verdict
 from ..monitoring.windows import WindowTracker
@@ -62,6 +63,10 @@ PARAMS = (
     Param("discrepancy", False, "after each diagnosis run the discrepancy loop; a structured residual -> WARN "
           "'model lacks: ...' (or, when no candidate explains it, WARN that the coefficients may be biased)"),
     Param("discrepancy_max_effects", 1, "most effects the loop may add", 0, 8),
+    Param("max_fill_samples", 0, "fill lost samples of a measured channel by linear interpolation when no gap is "
+          "longer than this many samples (and at most 10 % are lost); 0: refuse any gap", 0, 100),
+    Param("best_effort", False, "subscribe to the inputs BEST_EFFORT (a lossy link; matches both kinds of "
+          "publisher) instead of RELIABLE"),
     Param("request_tests", 0, "ask the command node (eha/start_test) for this many tests, one after each verdict, "
           "each once every input topic has a matched publisher (0: never ask)", 0, INT_MAX),
 )
@@ -86,8 +91,9 @@ class MonitorNode(Node):
         handlers = {C.COMMAND.name: self._on_command, C.JOINT_STATE.name: self._on_joint_state,
                     C.PRESSURE.name: self._on_pressure, C.CURRENT.name: self._on_current,
                     C.TEST_WINDOW.name: self._on_window}
-        self._subs = [self.create_subscription(msg_class(topic), topic.name,
-                                               self._recorder(topic, handlers.get(topic.name)), qos(topic), raw=True)
+        lossy = bool(self.get_parameter("best_effort").value)
+        self._subs = [self.create_subscription(msg_class(topic), topic.name, self._recorder(
+            topic, handlers.get(topic.name)), qos(topic, best_effort=lossy), raw=True)
                       for topic in C.INPUTS]
         self.tests_requested = 0
         self._request = None                  # the start_test call in flight
@@ -231,7 +237,9 @@ class MonitorNode(Node):
         if self.log is not None:
             self.log.flush()
         try:
-            r = self.windows.assemble(w)
+            r = self.windows.assemble(w, int(self.get_parameter("max_fill_samples").value))
+        except IncompleteWindow as e:   # a source stopped mid-test: say so, do not diagnose a part
+            return self._report(w, None, str(e), incomplete=True)
         except ValueError as e:     # WindowError: the window names what is wrong with it
             return self._report(w, None, str(e))
         args = dict(method=self.get_parameter("method").value, fitness=self.get_parameter("fitness").value,
@@ -244,13 +252,16 @@ class MonitorNode(Node):
     def _policy(self) -> HealthPolicy:
         return HealthPolicy(float(self.get_parameter("warn_level").value), float(self.get_parameter("error_level").value))
 
-    def _report(self, w, d, error: str | None, rep=None) -> None:
+    def _report(self, w, d, error: str | None, rep=None, incomplete: bool = False) -> None:
         entry = {"test_id": w.id, "start_ns": w.start, "truth": w.truth, "response": w.response, "diagnosis": d}
-        if d is None:
+        if d is None and incomplete:
+            v = self._policy().incomplete(w.id, error)
+            self.get_logger().warning(v.message)
+        elif d is None:
             v = self._policy().refused(w.id, error)
             self.get_logger().error(v.message)
         else:
-            v = self._policy().verdict(w.id, w.start, d, rep)
+            v = self._policy().verdict(w.id, w.start, d, rep, (w.response.meta or {}).get("filled"))
             if rep is not None:
                 entry["discrepancy"] = rep
             k = d.faults.as_tuple()
