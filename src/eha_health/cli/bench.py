@@ -1,4 +1,4 @@
-"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy, fuzz)."""
+"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy, fuzz, soak)."""
 from __future__ import annotations
 
 import json
@@ -85,8 +85,27 @@ def bench_fuzz(args) -> int:
     return 0 if res["ok"] else 1
 
 
+def bench_soak(args) -> int:
+    from ..bench.soak import format_soak, plot_soak, soak
+    tests = args.tests
+    if tests < 2:
+        raise UsageError("--tests must be >= 2")
+    warmup = min(20, tests // 5) if args.warmup is None else args.warmup
+    if not 0 <= warmup < tests:
+        raise UsageError(f"--warmup must be in 0..{tests - 1}")
+    res = soak(tests=tests, warmup=warmup, seed=args.seed, progress=progress(args))
+    if args.plot:
+        plot_soak(res, args.plot)
+    if args.json:
+        print(json.dumps(res, indent=2, default=float))
+    else:
+        print(format_soak(res) + (f"\n  plot: {args.plot}" if args.plot else ""))
+    return 0
+
+
 BENCHES = {"speed": bench_speed, "paper": bench_paper, "graph": bench_graph, "floor": bench_floor,
-           "discrepancy": bench_discrepancy, "fuzz": bench_fuzz}
+           "discrepancy": bench_discrepancy, "fuzz": bench_fuzz,
+           "soak": bench_soak}
 
 
 def cmd_bench(args) -> int:
@@ -99,7 +118,7 @@ def register(sub) -> None:
     b = sub.add_parser("bench", help="benchmarks: " + " | ".join(BENCHES),
                        parents=[fitness_option("paper: fitness function"), json_flag(), quiet_flag()])
     b.add_argument("what", help="speed, paper, graph, floor (the monitor's residual floor) or discrepancy "
-                                "(the loop on synthetic undeclared effects)")
+                                "(the loop on synthetic undeclared effects), fuzz (untrusted inputs), soak (many tests)")
     b.add_argument("--write", metavar="YAML", help="floor: write the settings file, e.g. src/eha_health/data/discrepancy.yaml")
     b.add_argument("--rate", type=float, default=0.0, help="graph: command playback speed (0 as fast as possible)")
     b.add_argument("--no-compile", action="store_true", help="speed: skip the fresh-process compile-time measurement")
@@ -115,4 +134,8 @@ def register(sub) -> None:
     b.add_argument("--target", action="append", metavar="T",
                    help="fuzz: mcap, importer, csv, history or messages (repeatable; default all)")
     b.add_argument("--examples", type=int, default=2000, metavar="N", help="fuzz: cases per target (2000)")
+    b.add_argument("--tests", type=int, default=300, metavar="N", help="soak: consecutive tests (300)")
+    b.add_argument("--warmup", type=int, default=None, metavar="N",
+                   help="soak: tests before the memory/time baseline (20, or a fifth of --tests)")
+    b.add_argument("--plot", metavar="PNG", help="soak: memory, threads and diagnosis time per test")
     b.set_defaults(func=cmd_bench)

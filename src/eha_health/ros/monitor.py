@@ -45,6 +45,9 @@ from .params import INT_MAX, Param, declare
 #: How long a window waits for late samples once none arrives [s].
 WINDOW_TIMEOUT_S = 2.0
 
+#: Verdicts that keep their window's samples and fitted response in ``results`` (older ones drop them).
+KEEP_RESPONSES = 10
+
 #: The monitor's parameters (docs/interfaces.md): defaults, units, ranges.
 PARAMS = (
     Param("actuator_id", "eha", "hardware_id of the diagnostic status"),
@@ -276,6 +279,12 @@ class MonitorNode(Node):
                         k_: json.dumps(x, default=float) for k_, x in rep.as_dict().items()})
         entry.update(level=v.level, message=v.message)
         self.results.append(entry)
+        # a long run keeps every verdict but only the last windows' samples and fitted responses
+        # (~0.4 MB a test: 300 tests would hold 120 MB)
+        for old in self.results[-KEEP_RESPONSES - 1:-KEEP_RESPONSES]:
+            old["response"] = None
+            if old["diagnosis"] is not None:
+                old["diagnosis"].fitted = None
         self._status = v
         self._publish_status()
         if self.log is not None:
