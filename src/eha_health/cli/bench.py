@@ -103,9 +103,16 @@ def bench_soak(args) -> int:
     return 0
 
 
+def bench_loss(args) -> int:
+    from ..bench.loss import format_loss, loss
+    res = loss(seed=args.seed, progress=progress(args))
+    print(json.dumps(res, indent=2, default=float) if args.json else format_loss(res))
+    return 0
+
+
 BENCHES = {"speed": bench_speed, "paper": bench_paper, "graph": bench_graph, "floor": bench_floor,
            "discrepancy": bench_discrepancy, "fuzz": bench_fuzz,
-           "soak": bench_soak}
+           "soak": bench_soak, "loss": bench_loss}
 
 
 def cmd_bench(args) -> int:
@@ -118,7 +125,7 @@ def register(sub) -> None:
     b = sub.add_parser("bench", help="benchmarks: " + " | ".join(BENCHES),
                        parents=[fitness_option("paper: fitness function"), json_flag(), quiet_flag()])
     b.add_argument("what", help="speed, paper, graph, floor (the monitor's residual floor) or discrepancy "
-                                "(the loop on synthetic undeclared effects), fuzz (untrusted inputs), soak (many tests)")
+                                "(the loop on synthetic undeclared effects), fuzz (untrusted inputs), soak (many tests), loss (lossy link)")
     b.add_argument("--write", metavar="YAML", help="floor: write the settings file, e.g. src/eha_health/data/discrepancy.yaml")
     b.add_argument("--rate", type=float, default=0.0, help="graph: command playback speed (0 as fast as possible)")
     b.add_argument("--no-compile", action="store_true", help="speed: skip the fresh-process compile-time measurement")
