@@ -198,11 +198,14 @@ def test_launch_ends_at_once_when_a_node_refuses_its_parameters(tmp_path):
     import time
     domain = 1 + (int(os.environ["ROS_DOMAIN_ID"]) + 60) % 200
     t0 = time.monotonic()
+    timeout_s = 900.0
     res = launch(Faults(0.4, 0.0, 0.0), effects=["oil_foam"], rate=0.0, log_path=tmp_path / "x.mcap",
-                 domain_id=domain, timeout_s=120)
+                 domain_id=domain, timeout_s=timeout_s)
     assert not res["ok"]
     assert res["returncodes"]["plant"] == 2          # refused at start, one line, no traceback
-    assert time.monotonic() - t0 < 60                # not left waiting for the 120 s timeout
+    # ended by the plant's exit, not by the timeout (a long one, so a busy machine cannot reach it:
+    # a logical check, not a speed check)
+    assert time.monotonic() - t0 < timeout_s
     assert all(rc is not None for rc in res["returncodes"].values())
 
 
