@@ -105,18 +105,10 @@ def test_offline_and_replayed_diagnosis_equal_the_live_one(live, tmp_path):
 
 
 def test_latched_health_reaches_a_late_subscriber():
-    import rclpy
-    from std_msgs.msg import Float64MultiArray
-
-    from eha_health.ros import qos
     from msg_bridge import contract as C
     with Graph(faults=Faults(0.0, 0.0, 0.5)) as g:
         d = g.run_test()["diagnosis"]
-        late = rclpy.create_node("late_subscriber", context=g.ctx)
-        got = []
-        late.create_subscription(Float64MultiArray, C.HEALTH.name, got.append, qos(C.HEALTH))
-        g.nodes.append(late)
-        g.ex.add_node(late)
+        got = g.listen(C.HEALTH, "late_subscriber")
         g.spin_until(lambda: got, 10.0, "latched health")
     np.testing.assert_allclose(got[0].data[:3], d.faults.as_tuple())
     np.testing.assert_allclose(got[0].data[3:], [d.std[n] for n in NAMES])

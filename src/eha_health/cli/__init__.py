@@ -2,17 +2,17 @@
 
 Commands by group: :mod:`.model` (simulate, calibrate, signatures), :mod:`.analysis`
 (diagnose, discrepancy, import), :mod:`.graph` (demo, record, launch, replay),
-:mod:`.bench`. Bad input exits with code 2 and one line that says what is wrong.
+:mod:`.prognostics` (history, prognose, thresholds), :mod:`.bench`. Bad input exits with code 2 and one line that says what is wrong.
 """
 from __future__ import annotations
 
 import argparse
 import sys
 
-from . import analysis, bench, graph, model
+from . import analysis, bench, graph, model, prognostics
 from .common import UsageError
 
-GROUPS = (model, bench, analysis, graph)
+GROUPS = (model, bench, analysis, graph, prognostics)
 
 
 def build_parser() -> argparse.ArgumentParser:

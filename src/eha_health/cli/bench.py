@@ -1,4 +1,4 @@
-"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy, fuzz, soak)."""
+"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy, rul, fuzz, soak, loss)."""
 from __future__ import annotations
 
 import json
@@ -37,7 +37,7 @@ def bench_floor(args) -> int:
 
 def bench_discrepancy(args) -> int:
     from ..bench.discrepancy import format_synthetic, synthetic
-    res = synthetic(seed=args.seed, n_noise=args.random or 6, progress=progress(args))
+    res = synthetic(seed=args.seed or 0, n_noise=args.random or 6, progress=progress(args))
     print(json.dumps(res, indent=2, default=float) if args.json else "\n" + format_synthetic(res))
     return 0
 
@@ -50,7 +50,7 @@ def bench_paper(args) -> int:
         raise UsageError(f"unknown method {args.method!r}; choose from {', '.join(METHODS)} or all")
     if args.random < 0:
         raise UsageError("--random must be >= 0")
-    res = run_bench(methods, fitness=args.fitness, noise=args.noise, n_random=args.random, seed=args.seed,
+    res = run_bench(methods, fitness=args.fitness, noise=args.noise, n_random=args.random, seed=args.seed or 0,
                     de=not args.no_de, progress=progress(args))
     cmd = "eha-health " + " ".join(args.raw)
     if args.markdown:
@@ -80,7 +80,7 @@ def bench_fuzz(args) -> int:
         raise UsageError(f"unknown fuzz target(s) {', '.join(unknown)}; available: {', '.join(TARGETS)}")
     if args.examples < 1:
         raise UsageError("--examples must be >= 1")
-    res = fuzz(targets, examples=args.examples, seed=args.seed, progress=progress(args))
+    res = fuzz(targets, examples=args.examples, seed=args.seed or 0, progress=progress(args))
     print(json.dumps(res, indent=2, default=float) if args.json else format_fuzz(res))
     return 0 if res["ok"] else 1
 
@@ -93,7 +93,7 @@ def bench_soak(args) -> int:
     warmup = min(20, tests // 5) if args.warmup is None else args.warmup
     if not 0 <= warmup < tests:
         raise UsageError(f"--warmup must be in 0..{tests - 1}")
-    res = soak(tests=tests, warmup=warmup, seed=args.seed, progress=progress(args))
+    res = soak(tests=tests, warmup=warmup, seed=args.seed or 0, progress=progress(args))
     if args.plot:
         plot_soak(res, args.plot)
     if args.json:
@@ -105,14 +105,35 @@ def bench_soak(args) -> int:
 
 def bench_loss(args) -> int:
     from ..bench.loss import format_loss, loss
-    res = loss(seed=args.seed, progress=progress(args))
+    res = loss(seed=7 if args.seed is None else args.seed, progress=progress(args))
     print(json.dumps(res, indent=2, default=float) if args.json else format_loss(res))
     return 0
 
 
+def bench_rul(args) -> int:
+    from ..bench.rul import bench_rul as run, format_result, time_prognose, write_markdown
+    from ..prognostics.config import load_settings
+    if args.time_prognose is not None:
+        if args.time_prognose < 1:
+            raise UsageError(f"--time-prognose must be >= 1 actuators, got {args.time_prognose}")
+        res = time_prognose(args.time_prognose)
+        print(json.dumps(res) if args.json else f"prognose on {res['actuators']} actuators ({res['series']} series): "
+              f"{res['wall_time_s']:.1f} s wall, {res['cpu_time_s']:.1f} s CPU (load {res['load_1min_before']:.1f})")
+        return 0
+    if args.units is not None and args.units < 3:
+        raise UsageError(f"--units must be >= 3 (one per fault), got {args.units}")
+    over = {"bench": {k: v for k, v in (("n_units", args.units), ("seed", args.seed)) if v is not None}}
+    s = load_settings(args.settings, over)
+    res = run(s, args.cache, "out/bench_rul.png" if args.plot is None else (args.plot or None), progress(args))
+    if args.markdown:
+        write_markdown(res, args.markdown, "eha-health " + " ".join(args.raw))
+    print(json.dumps(res, indent=1, default=float) if args.json else format_result(res))
+    return 0
+
+
 BENCHES = {"speed": bench_speed, "paper": bench_paper, "graph": bench_graph, "floor": bench_floor,
-           "discrepancy": bench_discrepancy, "fuzz": bench_fuzz,
-           "soak": bench_soak, "loss": bench_loss}
+           "discrepancy": bench_discrepancy, "rul": bench_rul, "fuzz": bench_fuzz, "soak": bench_soak,
+           "loss": bench_loss}
 
 
 def cmd_bench(args) -> int:
@@ -124,8 +145,9 @@ def cmd_bench(args) -> int:
 def register(sub) -> None:
     b = sub.add_parser("bench", help="benchmarks: " + " | ".join(BENCHES),
                        parents=[fitness_option("paper: fitness function"), json_flag(), quiet_flag()])
-    b.add_argument("what", help="speed, paper, graph, floor (the monitor's residual floor) or discrepancy "
-                                "(the loop on synthetic undeclared effects), fuzz (untrusted inputs), soak (many tests), loss (lossy link)")
+    b.add_argument("what", help="speed, paper, graph, floor (the monitor's residual floor), discrepancy "
+                                "(the loop on synthetic undeclared effects), rul (run-to-failure fleet: prognostics), "
+                                "fuzz (untrusted inputs), soak (many tests) or loss (lossy link)")
     b.add_argument("--write", metavar="YAML", help="floor: write the settings file, e.g. src/eha_health/data/discrepancy.yaml")
     b.add_argument("--rate", type=float, default=0.0, help="graph: command playback speed (0 as fast as possible)")
     b.add_argument("--no-compile", action="store_true", help="speed: skip the fresh-process compile-time measurement")
@@ -133,9 +155,20 @@ def register(sub) -> None:
     b.add_argument("--noise", action="store_true", help="paper: default sensor noise on the reference runs")
     b.add_argument("--random", type=int, default=0, metavar="N",
                    help="paper: add N random K triples in [0,1]^3; floor: runs (12); discrepancy: noise-only runs (6)")
-    b.add_argument("--seed", type=int, default=0, help="paper: seed of random cases, noise and GA; fuzz: seed")
+    b.add_argument("--seed", type=int, default=None, help="paper: seed of random cases, noise and GA (0); "
+                                                          "rul: fleet seed (bench.seed of data/prognostics.yaml); "
+                                                          "fuzz, soak: seed (0); loss: drop seed (7)")
     b.add_argument("--no-de", action="store_true", help="paper: skip the scipy differential_evolution peer")
-    b.add_argument("--markdown", help="paper: write the tables to this Markdown file")
+    b.add_argument("--markdown", help="paper: write the tables to this Markdown file; rul: write the figures into "
+                                      "this file (between its 'bench rul' markers if it has them, e.g. "
+                                      "docs/prognostics.md)")
+    b.add_argument("--units", type=int, help="rul: fleet size (bench.n_units of data/prognostics.yaml)")
+    b.add_argument("--settings", metavar="YAML", help="rul: a YAML merged over data/prognostics.yaml")
+    b.add_argument("--cache", default="out/rul_cache", help="rul: diagnosis cache directory (out/rul_cache)")
+    b.add_argument("--plot", default=None, help="rul: PNG of example units and the PIT (out/bench_rul.png; '' none); "
+                                                "soak: memory, threads and diagnosis time per test")
+    b.add_argument("--time-prognose", type=int, metavar="N",
+                   help="rul: only time prognose on a synthetic N-actuator history (every fault degrading)")
     b.add_argument("--write-model-error", metavar="YAML",
                    help="paper (clean runs): write the measured model-form error, e.g. src/eha_health/data/model_error.yaml")
     b.add_argument("--target", action="append", metavar="T",
@@ -144,5 +177,4 @@ def register(sub) -> None:
     b.add_argument("--tests", type=int, default=300, metavar="N", help="soak: consecutive tests (300)")
     b.add_argument("--warmup", type=int, default=None, metavar="N",
                    help="soak: tests before the memory/time baseline (20, or a fifth of --tests)")
-    b.add_argument("--plot", metavar="PNG", help="soak: memory, threads and diagnosis time per test")
     b.set_defaults(func=cmd_bench)

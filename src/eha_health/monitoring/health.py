@@ -3,7 +3,8 @@
 Levels follow the largest fault coefficient against ``warn_level`` and ``error_level``; a
 discrepancy report that names a missing effect, or a structured residual no candidate
 explains, raises an OK to WARN (the coefficients may be biased) and is said in the message.
-The key values are what ``/diagnostics`` carries (docs/interfaces.md).
+The key values are what ``/diagnostics`` carries (docs/interfaces.md); :func:`escalate` adds the
+prognosis (:mod:`.prognosis`): P(failure before the next check) may raise the level further.
 """
 from __future__ import annotations
 
@@ -70,6 +71,17 @@ class HealthPolicy:
                        "wall_time_s": diagnosis.wall_time_s, "window_start_s": window_start_ns / NS,
                        "warnings": "; ".join(diagnosis.warnings) or "none"})
         return Verdict(level, msg, values)
+
+
+_RANK = {"OK": 0, "WARN": 1, "ERROR": 2}
+
+
+def escalate(v: Verdict, level: str, why: str | None, values: dict) -> Verdict:
+    """``v`` with more key values (the prognosis), raised to ``level`` if that is worse, ``why`` in the message."""
+    msg = v.message if not why else (why + "; " + v.message if _RANK[level] > _RANK.get(v.level, 0)
+                                     else v.message + "; " + why)
+    worst = level if _RANK[level] > _RANK.get(v.level, 0) else v.level
+    return Verdict(worst, msg, {**v.values, **values})
 
 
 def discrepancy_text(report) -> str | None:

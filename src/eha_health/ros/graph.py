@@ -49,13 +49,14 @@ class Graph:
         link (relay publisher and monitor subscriptions) BEST_EFFORT.
     max_fill : the monitor's ``max_fill_samples`` (gap fill; 0 refuses any gap).
     plant : False runs no plant in this process (one in another process, e.g. to kill it).
+    monitor_params : more monitor parameters by name (e.g. ``history``, ``operating_hours``).
     """
 
     def __init__(self, faults: Faults = Faults(), effects: tuple[str, ...] = (), seed: int = 0, rate: float = 0.0,
                  method: str = DEFAULT_METHOD, fitness: str = "lsq", monitor_seed: int = 0, log_path: str | Path = "",
                  executor: str = "single", actuator_id: str = "eha", namespace: str = "", truth: bool = True,
                  params_file: str = "", discrepancy: bool = False, loss: float | None = None, loss_seed: int = 0,
-                 best_effort: bool = False, max_fill: int = 0, plant: bool = True):
+                 best_effort: bool = False, max_fill: int = 0, plant: bool = True, monitor_params: dict | None = None):
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, signal_handler_options=SignalHandlerOptions.NO)
         P = Parameter
@@ -83,7 +84,8 @@ class Graph:
                 P("method", value=method), P("fitness", value=fitness), P("seed", value=int(monitor_seed)),
                 P("log_path", value=str(log_path)), P("plant_node", value=plant_fqn if truth else ""),
                 P("actuator_id", value=actuator_id), P("discrepancy", value=bool(discrepancy)),
-                P("best_effort", value=bool(best_effort)), P("max_fill_samples", value=int(max_fill))], **ns)
+                P("best_effort", value=bool(best_effort)), P("max_fill_samples", value=int(max_fill)),
+                *(P(k, value=v) for k, v in (monitor_params or {}).items())], **ns)
             self.nodes = [n for n in (self.plant, self.command, self.relay, self.monitor) if n is not None]
             if executor == "events":
                 self.ex = EventsExecutor(context=self.ctx)
@@ -133,6 +135,17 @@ class Graph:
                 raise ValueError(f"plant refused the parameters: {'; '.join(bad)}")
         finally:
             self.monitor.destroy_client(client)
+
+    def listen(self, topic, node_name: str) -> list:
+        """Messages of contract ``topic`` received by a new, independent node on this executor (the list fills
+        as the graph spins; a latched topic delivers its last message to it)."""
+        from . import msg_class, qos
+        node = rclpy.create_node(node_name, context=self.ctx)
+        got: list = []
+        node.create_subscription(msg_class(topic), topic.name, got.append, qos(topic))
+        self.nodes.append(node)
+        self.ex.add_node(node)
+        return got
 
     # ---------------------------------------------------------------- teardown
     def close(self) -> None:
