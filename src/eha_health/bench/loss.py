@@ -26,6 +26,11 @@ def loss(fractions=(0.0, 0.01, 0.05), max_fill: int = 10, seed: int = 7, faults:
         rows.append({"loss": p, "dropped": dropped, "messages": dropped + passed, "level": r["level"],
                      "message": r["message"], "k": list(d.faults.as_tuple()) if d else None,
                      "filled": sum((r["response"].meta.get("filled") or {}).values()) if r["response"] else 0})
+        if progress:     # the figures so far (a long run stopped early still says them)
+            ref = rows[0]["k"]
+            diff = np.max(np.abs(np.subtract(rows[-1]["k"], ref))) if rows[-1]["k"] and ref else float("nan")
+            progress(f"loss {p:.0%}: dropped {dropped}, filled {rows[-1]['filled']}, K {rows[-1]['k']}, "
+                     f"|dK| max {diff:.5f}: {r['level']}: {r['message']}")
     ref = rows[0]["k"]
     for row in rows:
         row["max_diff"] = float(np.max(np.abs(np.subtract(row["k"], ref)))) if row["k"] and ref else None
