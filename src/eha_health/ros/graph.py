@@ -110,7 +110,7 @@ class Graph:
     def _wait_truth_service(self) -> None:
         c = self.monitor._truth_client
         if c is not None:
-            self.spin_until(c.service_is_ready, 10.0, "plant parameter service discovered")
+            self.spin_until(c.service_is_ready, 120.0, "plant parameter service discovered")
 
     def run_test(self, timeout_s: float = 600.0) -> dict:
         """Play one FDI test, wait for the monitor's verdict, return it (see ``MonitorNode.results``).
@@ -125,7 +125,7 @@ class Graph:
         self.spin_until(lambda: len(self.monitor.results) > n, timeout_s, "monitor verdict")
         return self.monitor.results[-1]
 
-    def set_plant(self, timeout_s: float = 10.0, **values) -> None:
+    def set_plant(self, timeout_s: float = 120.0, **values) -> None:
         """Change plant parameters through its standard ``set_parameters`` service."""
         client = self.monitor.create_client(SetParameters, f"{self.plant.get_fully_qualified_name()}/set_parameters")
         try:
