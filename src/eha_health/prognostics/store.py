@@ -347,6 +347,16 @@ class HistoryStore:
             except BaseException:
                 self.conn.execute("ROLLBACK")
                 raise
+        else:   # a damaged schema can parse and pass the integrity check yet miss a column (fuzzing found it)
+            want = {"tests": ("id",) + TEST_COLUMNS, "schema_version": ("version", "applied_utc"),
+                    "maintenance": ("id", "actuator_id", "time_h", "fault", "action", "wall_time_utc", "note")}
+            for table, cols in want.items():
+                have = {r[1] for r in self.conn.execute(f"PRAGMA table_info({table})")}
+                lost = [c for c in cols if c not in have]
+                if lost:
+                    self.conn.close()
+                    raise PrognosticsError(f"{self.path}: not a history database (table {table} lacks "
+                                           f"{', '.join(lost)})")
 
     def close(self) -> None:
         self.conn.close()
