@@ -40,7 +40,7 @@ out["offline"] = same_keys(diagnose(r, seed=0).as_dict())
 out["in_process"] = same_keys(replay(bag, rate=0.0)["results"][0]["diagnosis"])
 mon = subprocess.Popen([sys.executable, "-m", "eha_health.ros.monitor", "--ros-args",
                         "-p", "exit_after:=1", "-p", f"log_path:={log}"])
-replay(bag, rate=0.0, with_monitor=False)
+replay(bag, rate=0.0, with_monitor=False, wait_for_subscribers_s=600.0)   # the monitor may start slowly
 mon.wait(timeout=900)
 out["dds"] = same_keys(recorded_results(log)[0]["diagnosis"])
 print("RESULT " + json.dumps(out))

@@ -118,8 +118,13 @@ class ReplayNode(Node):
         self.sent = max(end, self.sent)
 
 def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_path: str | Path = "",
-           domain_id: int | None = None, method: str = DEFAULT_METHOD, timeout_s: float = 600.0) -> dict:
+           domain_id: int | None = None, method: str = DEFAULT_METHOD, timeout_s: float = 600.0,
+           wait_for_subscribers_s: float = 10.0) -> dict:
     """Republish ``bag`` into the graph; with ``with_monitor`` also diagnose it here.
+
+    Publishing starts once a subscriber takes the commands and the marks, or after
+    ``wait_for_subscribers_s`` (a monitor process that is still starting on a busy machine
+    needs longer than the default: measured, over 10 s at load 18).
 
     Returns the monitor's verdicts (with the bag's own truth metadata where it has
     some) and a printable summary.
@@ -141,7 +146,9 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
             nodes.append(mon)
         # with the monitor here, pace by what it has taken (flow control), not by a fixed rate
         delivered = (lambda: sum(mon.received.values())) if mon is not None else None
-        rep = ReplayNode(bag, context=ctx, delivered=delivered, parameter_overrides=[Parameter("rate", value=float(rate))])
+        rep = ReplayNode(bag, context=ctx, delivered=delivered, parameter_overrides=[
+            Parameter("rate", value=float(rate)),
+            Parameter("wait_for_subscribers_s", value=float(wait_for_subscribers_s))])
         nodes.insert(0, rep)
         for n in nodes:
             ex.add_node(n)
