@@ -417,6 +417,7 @@ def test_real_rig_import_and_loop(tmp_path):
 
 
 # ----------------------------------------------------------------------------- monitor node
+@pytest.mark.graph
 def test_monitor_node_warns_what_the_model_lacks(tmp_path):
     from eha_health.io.mcaplog import read_bag
     from eha_health.ros.graph import Graph
@@ -429,6 +430,7 @@ def test_monitor_node_warns_what_the_model_lacks(tmp_path):
     assert json.loads(meta["discrepancy/test_1"]["selected"]) == ["sensor_delay"]
 
 
+@pytest.mark.graph
 def test_monitor_node_warns_when_no_candidate_explains_a_structured_residual(tmp_path):
     from eha_health.ros.graph import Graph
     soft = tmp_path / "soft_mount.yaml"

@@ -1,4 +1,5 @@
-"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy, rul, fleet)."""
+"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy, rul, fleet,
+fuzz, soak, loss)."""
 from __future__ import annotations
 
 import json
@@ -82,6 +83,47 @@ def _plot(args, default: str) -> str | None:
     return default if args.plot is None else (args.plot or None)
 
 
+def bench_fuzz(args) -> int:
+    try:
+        from ..bench.fuzz import TARGETS, format_fuzz, fuzz
+    except ImportError as e:
+        raise UsageError(f"fuzz needs hypothesis (pip install -e '.[test]'): {e}") from None
+    targets = args.target or list(TARGETS)
+    unknown = [t for t in targets if t not in TARGETS]
+    if unknown:
+        raise UsageError(f"unknown fuzz target(s) {', '.join(unknown)}; available: {', '.join(TARGETS)}")
+    if args.examples < 1:
+        raise UsageError("--examples must be >= 1")
+    res = fuzz(targets, examples=args.examples, seed=args.seed or 0, progress=progress(args))
+    print(json.dumps(res, indent=2, default=float) if args.json else format_fuzz(res))
+    return 0 if res["ok"] else 1
+
+
+def bench_soak(args) -> int:
+    from ..bench.soak import format_soak, plot_soak, soak
+    tests = 300 if args.tests is None else args.tests
+    if tests < 2:
+        raise UsageError("--tests must be >= 2")
+    warmup = min(20, tests // 5) if args.warmup is None else args.warmup
+    if not 0 <= warmup < tests:
+        raise UsageError(f"--warmup must be in 0..{tests - 1}")
+    res = soak(tests=tests, warmup=warmup, seed=args.seed or 0, progress=progress(args))
+    if args.plot:
+        plot_soak(res, args.plot)
+    if args.json:
+        print(json.dumps(res, indent=2, default=float))
+    else:
+        print(format_soak(res) + (f"\n  plot: {args.plot}" if args.plot else ""))
+    return 0
+
+
+def bench_loss(args) -> int:
+    from ..bench.loss import format_loss, loss
+    res = loss(seed=7 if args.seed is None else args.seed, progress=progress(args))
+    print(json.dumps(res, indent=2, default=float) if args.json else format_loss(res))
+    return 0
+
+
 def bench_rul(args) -> int:
     from ..bench.rul import bench_rul as run, format_result, time_prognose, write_markdown
     from ..prognostics.config import load_settings
@@ -109,16 +151,18 @@ def bench_fleet(args) -> int:
     method = DEFAULT_METHOD if args.method == "all" else args.method
     if method not in METHODS:
         raise UsageError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
-    if args.tests < 2:
-        raise UsageError(f"--tests must be >= 2, got {args.tests}")
-    res = run(n_tests=args.tests, method=method, fmt=args.format, seed=args.seed or 17,
+    n_tests = 60 if args.tests is None else args.tests
+    if n_tests < 2:
+        raise UsageError(f"--tests must be >= 2, got {n_tests}")
+    res = run(n_tests=n_tests, method=method, fmt=args.format, seed=args.seed or 17,
               plot=_plot(args, "out/bench_fleet.png"), all_cores_serial=args.serial_all_cores, progress=progress(args))
     print(json.dumps(res, indent=2, default=float) if args.json else format_bench(res))
     return 0
 
 
 BENCHES = {"speed": bench_speed, "paper": bench_paper, "graph": bench_graph, "floor": bench_floor,
-           "discrepancy": bench_discrepancy, "rul": bench_rul, "fleet": bench_fleet}
+           "discrepancy": bench_discrepancy, "rul": bench_rul, "fleet": bench_fleet, "fuzz": bench_fuzz,
+           "soak": bench_soak, "loss": bench_loss}
 
 
 def cmd_bench(args) -> int:
@@ -131,7 +175,8 @@ def register(sub) -> None:
     b = sub.add_parser("bench", help="benchmarks: " + " | ".join(BENCHES),
                        parents=[fitness_option("paper: fitness function"), json_flag(), quiet_flag()])
     b.add_argument("what", help="speed, paper, graph, floor (the monitor's residual floor), discrepancy "
-                                "(the loop on synthetic undeclared effects), rul (run-to-failure fleet: prognostics) or fleet (Dask throughput)")
+                                "(the loop on synthetic undeclared effects), rul (run-to-failure fleet: prognostics), "
+                                "fleet (Dask throughput), fuzz (untrusted inputs), soak (many tests) or loss (lossy link)")
     b.add_argument("--write", metavar="YAML", help="floor: write the settings file, e.g. src/eha_health/data/discrepancy.yaml")
     b.add_argument("--rate", type=float, default=0.0, help="graph: command playback speed (0 as fast as possible)")
     b.add_argument("--no-compile", action="store_true", help="speed: skip the fresh-process compile-time measurement")
@@ -142,8 +187,10 @@ def register(sub) -> None:
                    help="paper: add N random K triples in [0,1]^3; floor: runs (12); discrepancy: noise-only runs (6)")
     b.add_argument("--seed", type=int, default=None, help="paper: seed of random cases, noise and GA (0); "
                                                           "rul: fleet seed (bench.seed of data/prognostics.yaml); "
-                                                          "fleet: seed of the simulated fleet (17)")
-    b.add_argument("--tests", type=int, default=60, help="fleet: recordings diagnosed by each configuration (60)")
+                                                          "fleet: seed of the simulated fleet (17); "
+                                                          "fuzz, soak: seed (0); loss: drop seed (7)")
+    b.add_argument("--tests", type=int, default=None, metavar="N",
+                   help="fleet: recordings diagnosed by each configuration (60); soak: consecutive tests (300)")
     b.add_argument("--format", choices=("mcap", "csv"), default="mcap", help="fleet: recording format (mcap)")
     b.add_argument("--serial-all-cores", action="store_true",
                    help="fleet: also time the serial loop with numba on all cores")
@@ -160,9 +207,15 @@ def register(sub) -> None:
     b.add_argument("--settings", metavar="YAML", help="rul: a YAML merged over data/prognostics.yaml")
     b.add_argument("--cache", default="out/rul_cache", help="rul: diagnosis cache directory (out/rul_cache)")
     b.add_argument("--plot", help="rul: PNG of example units and the PIT (out/bench_rul.png); fleet: PNG of the "
-                                  "figures (out/bench_fleet.png); '' for none")
+                                  "figures (out/bench_fleet.png); soak: memory, threads and diagnosis time per "
+                                  "test (none); '' for none")
     b.add_argument("--time-prognose", type=int, metavar="N",
                    help="rul: only time prognose on a synthetic N-actuator history (every fault degrading)")
     b.add_argument("--write-model-error", metavar="YAML",
                    help="paper (clean runs): write the measured model-form error, e.g. src/eha_health/data/model_error.yaml")
+    b.add_argument("--target", action="append", metavar="T",
+                   help="fuzz: mcap, importer, csv, history or messages (repeatable; default all)")
+    b.add_argument("--examples", type=int, default=2000, metavar="N", help="fuzz: cases per target (2000)")
+    b.add_argument("--warmup", type=int, default=None, metavar="N",
+                   help="soak: tests before the memory/time baseline (20, or a fifth of --tests)")
     b.set_defaults(func=cmd_bench)

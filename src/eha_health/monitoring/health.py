@@ -41,11 +41,21 @@ class HealthPolicy:
         """A window that could not be diagnosed (bad data, or the identification failed)."""
         return Verdict("ERROR", f"test {test_id} not diagnosed: {error}", {"test_id": test_id, "error": error})
 
-    def verdict(self, test_id: int, window_start_ns: int, diagnosis, report=None) -> Verdict:
-        """The verdict of a diagnosed window (``report``: the discrepancy loop's, if it ran)."""
+    def incomplete(self, test_id: int, why: str) -> Verdict:
+        """A window whose samples stopped before its end (a source killed or gone): WARN, not diagnosed."""
+        return Verdict("WARN", f"test {test_id} incomplete, not diagnosed: {why}",
+                       {"test_id": test_id, "incomplete": why})
+
+    def verdict(self, test_id: int, window_start_ns: int, diagnosis, report=None, filled: dict | None = None) -> Verdict:
+        """The verdict of a diagnosed window (``report``: the discrepancy loop's, if it ran; ``filled``:
+        samples filled per channel, said in the message)."""
         k = diagnosis.faults.as_tuple()
         level, msg = self.level(k)
         values = {"test_id": test_id}
+        if filled:
+            n = sum(filled.values())
+            msg += f"; {n} lost sample(s) filled (" + ", ".join(f"{c} {k_}" for c, k_ in filled.items()) + ")"
+            values["filled_samples"] = n
         if report is not None:
             values["discrepancy"] = report.verdict
             lacks = discrepancy_text(report)

@@ -316,9 +316,15 @@ class HistoryStore:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
             self.conn = sqlite3.connect(str(self.path), timeout=60.0, isolation_level=None)
+            # text the store did not write (a damaged page) must not raise mid-query
+            self.conn.text_factory = lambda b: b.decode("utf-8", "replace")
             ver = self.conn.execute("PRAGMA user_version").fetchone()[0]
-        except sqlite3.DatabaseError as e:
-            raise PrognosticsError(f"{self.path}: not a history database ({e})") from None
+            # a damaged file must be refused here, not fail later mid-query (fuzzing found both)
+            check = self.conn.execute("PRAGMA quick_check").fetchone()[0]
+            if check != "ok":
+                raise sqlite3.DatabaseError("integrity check: " + " ".join(str(check).split()))
+        except (sqlite3.DatabaseError, UnicodeDecodeError) as e:   # sqlite's own message may quote damaged bytes
+            raise PrognosticsError(f"{self.path}: not a history database ({' '.join(str(e).split())[:200]})") from None
         if ver > SCHEMA_VERSION:
             self.conn.close()
             raise PrognosticsError(f"{self.path}: history schema version {ver} is newer than this software's "
@@ -341,6 +347,16 @@ class HistoryStore:
             except BaseException:
                 self.conn.execute("ROLLBACK")
                 raise
+        else:   # a damaged schema can parse and pass the integrity check yet miss a column (fuzzing found it)
+            want = {"tests": ("id",) + TEST_COLUMNS, "schema_version": ("version", "applied_utc"),
+                    "maintenance": ("id", "actuator_id", "time_h", "fault", "action", "wall_time_utc", "note")}
+            for table, cols in want.items():
+                have = {r[1] for r in self.conn.execute(f"PRAGMA table_info({table})")}
+                lost = [c for c in cols if c not in have]
+                if lost:
+                    self.conn.close()
+                    raise PrognosticsError(f"{self.path}: not a history database (table {table} lacks "
+                                           f"{', '.join(lost)})")
 
     def close(self) -> None:
         self.conn.close()
