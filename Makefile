@@ -1,6 +1,8 @@
 # eha_health developer entry points.  Needs only python3 (>= 3.10) on PATH.
 #   make demo   - set up .venv (with the ros and test extras) and run the demo
 #   make test   - set up .venv and run the test suite
+#   make test-fast  - the suite without the slow node-graph tests (pytest -m "not graph")
+#   make test-graph - only the node-graph tests (pytest -m graph)
 #   make bench  - set up .venv and run the speed and graph benchmarks
 #   make bags   - regenerate the committed recordings in bags/
 #   make golden-check - re-run the golden outputs (tests/golden/) and compare (tools/golden.py)
@@ -16,13 +18,19 @@ PYTEST_ARGS ?=
 export ROS_LOG_DIR ?= $(CURDIR)/.ros/log
 export ROS_AUTOMATIC_DISCOVERY_RANGE ?= LOCALHOST
 
-.PHONY: demo test bench bags golden-check venv setup clean
+.PHONY: demo test test-fast test-graph bench bags golden-check venv setup clean
 
 demo: $(STAMP)
 	$(VENV)/bin/eha-health demo
 
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest -q tests $(PYTEST_ARGS)
+
+test-fast: $(STAMP)
+	$(VENV)/bin/python -m pytest -q tests -m "not graph" $(PYTEST_ARGS)
+
+test-graph: $(STAMP)
+	$(VENV)/bin/python -m pytest -q tests -m graph $(PYTEST_ARGS)
 
 bench: $(STAMP)
 	$(VENV)/bin/eha-health bench speed

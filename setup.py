@@ -33,6 +33,7 @@ setup(
         'matplotlib>=3.8',
         'mcap>=1.6',
         'mcap-ros2-support>=0.6',
+        'dask[distributed]>=2024.8',
     ],
     extras_require={
         # ROS 2 Jazzy from PyPI wheels (a venv is required: the wheels'

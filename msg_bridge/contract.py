@@ -38,6 +38,10 @@ TEST_WINDOW = Topic("eha/test_window", "std_msgs/msg/Header", 100, False,
                     "'end:<id>' at the last sample's stamp")
 HEALTH = Topic("eha/health", "std_msgs/msg/Float64MultiArray", 1, True,
                "latest estimate, 2x3 array [[K_GM, K_FSJ, K_BKL], [std K_GM, std K_FSJ, std K_BKL]] (dimensionless)")
+RUL = Topic("eha/rul", "std_msgs/msg/String", 1, True,
+            "latest prognosis of this actuator, JSON: the prognose --json object of one actuator "
+            "({\"actuator_id\", \"time_h\", \"faults\": {gm, fsj, bkl: F}, \"overall\": F}, F with rul_median_h, "
+            "rul_p05_h, rul_p95_h [h], p_fail_next, threshold, n_tests, model, reason)")
 DIAGNOSTICS = Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", 100, False,
                     "one DiagnosticStatus per actuator, re-published every diagnostics_period_s")
 

@@ -130,6 +130,14 @@ def health_from_msg(msg) -> tuple[np.ndarray, np.ndarray]:
 LEVELS = {"OK": 0, "WARN": 1, "ERROR": 2, "STALE": 3}
 
 
+def rul_msg(obj: dict):
+    """``std_msgs/String`` holding one actuator's prognosis as JSON (contract topic ``eha/rul``)."""
+    import json
+
+    from std_msgs.msg import String
+    return String(data=json.dumps(obj, default=float))
+
+
 def diagnostic_array(ns: int, name: str, hardware_id: str, level: str, message: str, values: dict):
     """One ``DiagnosticStatus`` in a ``DiagnosticArray``; values become strings (KeyValue)."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue

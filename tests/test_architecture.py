@@ -11,7 +11,7 @@ PKG = Path(__file__).resolve().parents[1] / "src" / "eha_health"
 #: Layer rank of every package (and top-level module) of eha_health: a module may import its own
 #: package and packages of a lower rank; peers of one rank do not import each other.
 RANK = {"signals": 0, "physics": 1, "identification": 2, "discrepancy": 3, "prognostics": 3, "io": 4,
-        "monitoring": 5, "ros": 6, "bench": 7, "plotting": 8, "cli": 9}
+        "fleet": 5, "monitoring": 5, "ros": 6, "bench": 7, "plotting": 8, "cli": 9}
 ROS_FREE = ("signals", "physics", "identification", "discrepancy", "prognostics", "monitoring")
 #: Third-party roots the ROS-free layers must never import, even lazily: ROS client library and
 #: message packages, the MCAP log format, and the topic contract.

@@ -123,6 +123,7 @@ def test_diagnose_reads_a_good_bag_with_its_truth(bags, capsys):
     assert abs(out["k_fsj"] - 0.6) <= 0.01 and out["k_gm"] <= 0.01 and out["k_bkl"] <= 0.01
 
 
+@pytest.mark.graph
 def test_monitor_reports_each_bad_window_and_diagnoses_the_next_good_one(run, tmp_path):
     src = tmp_path / "mixed.mcap"
     damages = list(CASES) + [None]

@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from eha_health import simulate
-from eha_health.discrepancy.candidates import BY_NAME, CANDIDATES
+from eha_health.discrepancy.candidates import BY_NAME, CANDIDATES, IN_LOOP_CANDIDATES, STRUCTURAL
 from eha_health.discrepancy.evidence import projection_share
 from eha_health.discrepancy.loop import analyse_fdi_test
 from eha_health.discrepancy.report import NO_MISSING_EFFECT, UNEXPLAINED
@@ -166,6 +166,13 @@ def test_structured_residual_no_candidate_explains_is_said_not_hidden():
                            max_effects=1)
     assert rep.residual_before.structured
     assert rep.selected == [] and rep.verdict == UNEXPLAINED
+    # the verdict says where the structure lives and which coefficients it is likely to bias
+    where = rep.unexplained["where"]
+    assert any(w.startswith(c) for w in where for c in rep.residual_before.channels
+               if rep.residual_before.channels[c].structured)
+    shifts = rep.unexplained["segment_shifts"]
+    assert set(shifts) == set(FAULT_NAMES) and all(len(v) == 5 for v in shifts.values())
+    assert rep.unexplained["bias"] and rep.as_dict()["unexplained"] == rep.unexplained
 
 
 def test_same_input_same_report():
@@ -205,7 +212,9 @@ def test_fit_never_returns_worse_than_its_start():
 
 def test_settings_floor_grows_with_the_effects_added():
     st = fdi_settings()
-    assert set(st.effect_floor) == {c.name for c in CANDIDATES}   # bench floor measured every candidate
+    # bench floor measured every in-loop candidate; a recording effect changes no simulated physics
+    assert set(st.effect_floor) == {c.name for c in IN_LOOP_CANDIDATES}
+    assert st.floor_with(["pressure_offset"]) == st.floor
     base = st.floor_with([])
     assert base == st.floor
     both = st.floor_with(["compressibility", "sensor_delay"])
@@ -218,7 +227,7 @@ def test_candidate_library_covers_the_mechanisms():
     assert {"compressibility", "sensor_delay", "sensor_bias", "sensor_gain", "supply_pressure", "viscous_friction",
             "stribeck", "valve_null_bias", "load_stiffness", "leakage"} <= names
     p = load("monitor")
-    for c in CANDIDATES:   # off leaves the model as it is; every knob value in range builds a valid model
+    for c in IN_LOOP_CANDIDATES + STRUCTURAL:   # every knob value in range builds a valid model
         for k in c.knobs:
             assert k.lo <= k.typical <= k.hi
             k.apply(p, k.typical)
@@ -408,6 +417,7 @@ def test_real_rig_import_and_loop(tmp_path):
 
 
 # ----------------------------------------------------------------------------- monitor node
+@pytest.mark.graph
 def test_monitor_node_warns_what_the_model_lacks(tmp_path):
     from eha_health.io.mcaplog import read_bag
     from eha_health.ros.graph import Graph
@@ -420,6 +430,7 @@ def test_monitor_node_warns_what_the_model_lacks(tmp_path):
     assert json.loads(meta["discrepancy/test_1"]["selected"]) == ["sensor_delay"]
 
 
+@pytest.mark.graph
 def test_monitor_node_warns_when_no_candidate_explains_a_structured_residual(tmp_path):
     from eha_health.ros.graph import Graph
     soft = tmp_path / "soft_mount.yaml"

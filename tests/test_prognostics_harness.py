@@ -4,7 +4,8 @@ import json
 import numpy as np
 
 from eha_health.prognostics.config import load_settings
-from eha_health.bench.rul import FINE_DT_H, bench_rul, diagnose_test, make_fleet
+from eha_health.bench.rul import (FINE_DT_H, MARK_BEGIN, MARK_END, bench_rul, diagnose_test, format_result, make_fleet,
+                                  write_markdown)
 
 THR = {"gm": 0.8, "fsj": 0.9, "bkl": 0.85}
 
@@ -73,3 +74,11 @@ def test_bench_end_to_end_tiny(tmp_path):
     r2 = bench_rul(s, cache_dir=tmp_path / "cache", plot=None, progress=None)
     assert r2["diagnoses"]["cached"] == r2["diagnoses"]["diagnoses"]
     assert r2["model"] == r["model"] and r2["naive"] == r["naive"]
+    assert set(r["oracle"]) == {"alpha_lambda", "law_and_shape_known", "law_known"}
+    # the figures go between the markers of a document, the rest of it kept
+    doc = tmp_path / "doc.md"
+    doc.write_text(f"# title\n{MARK_BEGIN}\nold figures\n{MARK_END}\ntail\n")
+    write_markdown(r, doc, "eha-health bench rul --units 1")
+    text = doc.read_text()
+    assert text.startswith("# title\n") and text.endswith(f"{MARK_END}\ntail\n") and "old figures" not in text
+    assert "`eha-health bench rul --units 1`" in text and format_result(r) in text

@@ -4,8 +4,9 @@
   reference runs without any missing effect (its model-form floor; written to
   ``data/discrepancy.yaml`` with ``eha-health bench floor --write``).
 * :func:`synthetic` -- the issue's targets on simulated undeclared effects: each
-  effect alone and with faults, plus noise-only runs; run ``eha-health bench
-  discrepancy``.
+  in-loop effect in the plant and each recording-chain effect altered after the test
+  (every channel), alone and with faults, two effects at once, plus noise-only runs;
+  run ``eha-health bench discrepancy``.
 """
 from __future__ import annotations
 
@@ -13,13 +14,19 @@ import time
 
 import numpy as np
 
+from scipy.interpolate import CubicSpline
+from scipy.signal import cont2discrete, lfilter
+
+from ..discrepancy.candidates import BY_NAME
 from ..discrepancy.loop import analyse_fdi_test
 from ..discrepancy.report import UNEXPLAINED
 from ..physics.faults import Faults
 from ..physics.model import simulate
+from ..identification.residual import CHANNEL_SCALES
 from ..physics.params import ModelParams, load
+from ..signals.channels import DISPLAY_UNITS, MEASURED
 
-#: Undeclared effects of the synthetic bench: (candidate that should be found, how the plant gets it).
+#: Undeclared in-loop effects of the synthetic bench: (candidate that should be found, how the plant gets it).
 EFFECTS: tuple[tuple[str, object], ...] = (
     ("compressibility", lambda p: p.with_effect_names(["compressibility"])),
     ("sensor_delay", lambda p: p.with_effect_names(["sensor_delay"])),
@@ -38,65 +45,150 @@ EFFECTS: tuple[tuple[str, object], ...] = (
 FAULT_SETS = (Faults(0.0, 0.0, 0.0), Faults(0.4, 0.5, 0.0), Faults(0.3, 0.4, 0.3))
 
 
-def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None) -> dict:
-    """Run the loop (max one effect) on every effect x fault set and on noise-only runs."""
+# Recording chains altered after the test, each with another numerical method than the
+# candidate's (cubic-spline skew, bilinear first-order lag): the loop must not find its own arithmetic.
+def late(r, channel: str, d: float):
+    """``r`` with ``channel`` recorded ``d`` [s] late (cubic spline, start held)."""
+    y = getattr(r, channel)
+    setattr(r, channel, CubicSpline(r.t, y)(np.clip(r.t - d, r.t[0], None)))
+    return r
+
+
+def scaled(r, channel: str, e: float):
+    setattr(r, channel, getattr(r, channel) * (1.0 + e))
+    return r
+
+
+def offset(r, channel: str, b: float):
+    setattr(r, channel, getattr(r, channel) + b)
+    return r
+
+
+def lagged(r, channel: str, tau: float):
+    """``r`` with ``channel`` through a first-order sensor ``tau`` [s] (bilinear transform)."""
+    b, a, _ = cont2discrete(([1.0], [tau, 1.0]), 1.0 / r.sample_rate, method="bilinear")
+    y = getattr(r, channel)
+    setattr(r, channel, lfilter(np.ravel(b), a, y - y[0]) + y[0])
+    return r
+
+
+#: Size of each recording alteration of the bench: an offset of one residual scale of the channel
+#: (position 0.1 mm, pressure 0.5 MPa, ...), +3 % scale, 4 ms late, a 3 ms sensor lag.
+ALTER = {"offset": (offset, lambda c: CHANNEL_SCALES[c]), "scale": (scaled, lambda c: 0.03),
+         "skew": (late, lambda c: 4e-3), "lag": (lagged, lambda c: 3e-3)}
+
+
+def recording_alterations(channels=MEASURED) -> tuple[tuple[str, object], ...]:
+    """(candidate, response -> altered response) for every recording candidate."""
+    return tuple((f"{c}_{k}", (lambda r, c=c, k=k: ALTER[k][0](r, c, ALTER[k][1](c))))
+                 for c in channels for k in ALTER)
+
+
+#: Two effects at once: (expected candidates, plant change, recording alteration).
+TWO_EFFECTS = (
+    (("pressure_offset", "sensor_delay"), lambda p: p.with_effects(sensor_delay={"enabled": True, "delay": 1e-3}),
+     lambda r: offset(r, "pressure", 5e5)),
+    (("position_skew", "compressibility"), lambda p: p.with_effect_names(["compressibility"]),
+     lambda r: late(r, "position", 4e-3)),
+)
+
+
+def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, fault_sets=FAULT_SETS,
+              two_effects: bool = True) -> dict:
+    """Run the loop on every effect x fault set (in-loop effects in the plant, recording effects
+    altered after the test), on two-effect cases and on noise-only runs."""
     cases = []
     ref = load("reference")
     rng = np.random.default_rng(seed)
-    todo = [(name, make, f) for name, make in EFFECTS if effects is None or name in effects for f in FAULT_SETS]
-    todo += [(None, (lambda p: p), Faults(*rng.uniform(0.0, 1.0, 3))) for _ in range(n_noise)]
-    for i, (name, make, f) in enumerate(todo):
+    keep = (lambda n: True) if effects is None else (lambda n: n in effects)
+    todo = [((name,), make, None, f) for name, make in EFFECTS if keep(name) for f in fault_sets]
+    todo += [((name,), (lambda p: p), alter, f) for name, alter in recording_alterations() if keep(name)
+             for f in fault_sets]
+    if two_effects:
+        todo += [(names, make, alter, Faults(0.3, 0.4, 0.3)) for names, make, alter in TWO_EFFECTS
+                 if effects is None or set(names) & set(effects)]
+    todo += [((), (lambda p: p), None, Faults(*rng.uniform(0.0, 1.0, 3))) for _ in range(n_noise)]
+    for i, (names, make, alter, f) in enumerate(todo):
         p: ModelParams = make(ref).with_effect_names(["sensor_noise"])
         r = simulate(params=p, faults=f, seed=seed + 100 + i)
+        if alter is not None:
+            r = alter(r)
         truth = f.as_dict()
         t0 = time.perf_counter()
-        rep = analyse_fdi_test(r, max_effects=1, truth=truth)
+        rep = analyse_fdi_test(r, max_effects=max(len(names), 1), truth=truth)
+        chans = {BY_NAME[n].channel or "position" for n in names} or {"position"}
         cases.append({
-            "effect": name, "faults": truth, "selected": rep.selected, "verdict": rep.verdict,
-            "ranked_first": rep.candidates[0].name if rep.candidates else None,
+            "effect": "+".join(names) or None, "effects": list(names), "faults": truth, "selected": rep.selected,
+            "verdict": rep.verdict, "ranked_first": rep.candidates[0].name if rep.candidates else None,
             "parameters": {k: v for e in rep.candidates if e.selected for k, v in e.parameters.items()},
             "rms_before": rep.before.rms["position"], "rms_after": rep.after.rms["position"],
             "noise_position": rep.residual_before.channels["position"].noise_sd,
+            "channels": sorted(chans),
+            "excess_held_before": {c: rep.before.excess_held_out[c] for c in chans},
+            "excess_held_after": {c: rep.after.excess_held_out[c] for c in chans},
             "err_before": max(rep.before.errors.values()), "err_after": max(rep.after.errors.values()),
-            "wall_time_s": time.perf_counter() - t0})
+            "runs": rep.runs, "refits": sum(c.refit for c in rep.candidates),
+            # the loop's own time (the diagnosis it starts from excluded), and with the diagnosis
+            "wall_time_s": rep.wall_time_s, "with_diagnosis_s": time.perf_counter() - t0})
         if progress:
-            progress(f"case {i + 1}/{len(todo)}: {name or 'noise only'} -> {rep.verdict}")
-    eff = [c for c in cases if c["effect"]]
-    noise = [c for c in cases if not c["effect"]]
-    found = [c for c in eff if c["selected"][:1] == [c["effect"]]]
+            c = cases[-1]
+            ch = c["channels"][0]
+            progress(f"case {i + 1}/{len(todo)}: {c['effect'] or 'noise only'} -> {rep.verdict}; first "
+                     f"{c['ranked_first']}; {ch} held-out excess {c['excess_held_before'][ch]:.3g} -> "
+                     f"{c['excess_held_after'][ch]:.3g}; max|dK| {c['err_before']:.4f} -> {c['err_after']:.4f}; "
+                     f"{c['runs']} runs, {c['wall_time_s']:.1f} s")
+    return summarise(cases, seed)
+
+
+def summarise(cases: list[dict], seed: int) -> dict:
+    one = [c for c in cases if len(c["effects"]) == 1]
+    two = [c for c in cases if len(c["effects"]) > 1]
+    noise = [c for c in cases if not c["effects"]]
+    found = [c for c in one if c["selected"][:1] == c["effects"]]
+    times = [c["wall_time_s"] for c in cases]
+    third = [all(c["excess_held_after"][ch] <= c["excess_held_before"][ch] / 3 for ch in c["channels"]) for c in found]
+    share = lambda v: float(np.mean(v)) if len(v) else None   # noqa: E731
     return {
         "seed": seed, "cases": cases,
-        "ranked_first_share": float(np.mean([c["ranked_first"] == c["effect"] for c in eff])) if eff else None,
-        "selected_share": float(np.mean([c["selected"][:1] == [c["effect"]] for c in eff])) if eff else None,
-        "false_reports_share": float(np.mean([bool(c["selected"]) for c in noise])) if noise else None,
+        "ranked_first_share": share([c["ranked_first"] == c["effects"][0] for c in one]),
+        "selected_share": share([c["selected"][:1] == c["effects"] for c in one]),
+        "two_effects_found_share": share([sorted(c["selected"]) == sorted(c["effects"]) for c in two]),
+        "false_reports_share": share([bool(c["selected"]) for c in noise]),
         # noise-only runs whose residual was still structured against the floor (the monitor's own
         # form error): no effect named, but the verdict says the residual is unexplained
-        "unexplained_noise_share": float(np.mean([c["verdict"] == UNEXPLAINED for c in noise])) if noise else None,
-        "max_wall_time_s": float(max(c["wall_time_s"] for c in cases)),
-        # position RMS after <= 1/3 of before, over the cases where the true effect was selected;
-        # and how many of those that miss it end at the sensor noise (after <= 1.2 x noise)
-        "third_share": float(np.mean([c["rms_after"] <= c["rms_before"] / 3 for c in found])) if found else None,
-        "at_noise_share": float(np.mean([c["rms_after"] <= 1.2 * c["noise_position"] for c in found])) if found else None,
+        "unexplained_noise_share": share([c["verdict"] == UNEXPLAINED for c in noise]),
+        "wall_time_s": {"min": float(min(times)), "median": float(np.median(times)), "max": float(max(times))}
+        if times else None,
+        # the affected channel's held-out excess over noise and floor after <= 1/3 of before, where
+        # the true effect was selected
+        "third_share": share(third),
         "max_err_after_found": float(max(c["err_after"] for c in found)) if found else None,
+        "err_within_0_03_share": share([c["err_after"] <= 0.03 for c in found]),
     }
 
 
 def format_synthetic(res: dict) -> str:
-    lines = [f"{'effect':21s} {'faults (gm,fsj,bkl)':20s} {'ranked first':21s} {'selected':21s} "
-             f"{'pos RMS um before->after':>25s} {'max|dK| before->after':>22s} {'time s':>7s}"]
+    lines = [f"{'effect':31s} {'faults (gm,fsj,bkl)':20s} {'ranked first':21s} {'selected':33s} "
+             f"{'held-out excess before->after':>31s} {'max|dK| before->after':>22s} {'runs':>5s} {'time s':>7s}"]
     for c in res["cases"]:
         f = ",".join(f"{v:.2f}" for v in c["faults"].values())
-        lines.append(f"{c['effect'] or '(noise only)':21s} {f:20s} {c['ranked_first'] or '-':21s} "
-                     f"{','.join(c['selected']) or '-':21s} {c['rms_before'] * 1e6:11.2f} -> {c['rms_after'] * 1e6:8.2f}"
-                     f"   {c['err_before']:9.4f} -> {c['err_after']:7.4f} {c['wall_time_s']:7.1f}")
-    pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"
-    lines.append(f"true effect ranked first: {pct(res['ranked_first_share'])} (target >= 90 %); "
-                 f"selected: {pct(res['selected_share'])}; false 'missing effect' on noise-only runs: "
-                 f"{pct(res['false_reports_share'])} (target <= 5 %), 'unexplained structured residual' on "
-                 f"them: {pct(res.get('unexplained_noise_share'))}; slowest analysis "
-                 f"{res['max_wall_time_s']:.1f} s (target <= 30 s)")
+        ch = c["channels"][0]
+        k, u = DISPLAY_UNITS[ch]
+        lines.append(f"{c['effect'] or '(noise only)':31s} {f:20s} {c['ranked_first'] or '-':21s} "
+                     f"{','.join(c['selected']) or '-':33s} {ch[:3]} {c['excess_held_before'][ch] * k:10.3g} -> "
+                     f"{c['excess_held_after'][ch] * k:8.3g} {u:4s}"
+                     f"   {c['err_before']:9.4f} -> {c['err_after']:7.4f} {c['runs']:5d} {c['wall_time_s']:7.1f}")
+    pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"   # noqa: E731
+    w = res["wall_time_s"] or {"min": 0, "median": 0, "max": 0}
+    lines.append(f"true effect ranked first: {pct(res['ranked_first_share'])} (target >= 95 %); "
+                 f"selected: {pct(res['selected_share'])} (target >= 90 %); two effects both found: "
+                 f"{pct(res['two_effects_found_share'])}; noise-only runs: false 'missing effect' "
+                 f"{pct(res['false_reports_share'])} (target <= 5 %), 'unexplained' "
+                 f"{pct(res.get('unexplained_noise_share'))} (target <= 5 %)")
+    lines.append(f"time per analysis (the loop, the diagnosis it starts from excluded): min {w['min']:.1f} s, median "
+                 f"{w['median']:.1f} s, max {w['max']:.1f} s (target <= 10 s)")
     if res.get("third_share") is not None:
-        lines.append(f"where the true effect was selected: position RMS after <= 1/3 of before in "
-                     f"{pct(res['third_share'])}, after within 1.2 x the sensor noise in {pct(res['at_noise_share'])}; "
-                     f"max coefficient error after {res['max_err_after_found']:.4f} (target <= 0.03)")
+        lines.append(f"where the true effect was selected: affected channel's held-out excess after <= 1/3 of "
+                     f"before in {pct(res['third_share'])}; coefficients within 0.03 in "
+                     f"{pct(res['err_within_0_03_share'])}, max error after {res['max_err_after_found']:.4f}")
     return "\n".join(lines)

@@ -13,7 +13,8 @@ Each unit of the fleet (unit i, its own random stream ``SeedSequence([seed, i])`
 * a test schedule every ``test_interval_h`` (+- jitter) up to the EOL; at each test the
   reference EHA with sensor noise is simulated at the true K and **diagnosed for real**
   (``eha_health.diagnose``); diagnoses are cached on disk as JSON keyed by the sha256 of
-  their inputs (true K, noise seed, method, diagnosis seed, package version).
+  their inputs (true K, noise seed, method, diagnosis seed, package version, and the
+  :func:`diagnosis_fingerprint` of the code and data a diagnosis depends on).
 
 Scoring: at every test from ``first_prediction_test`` on, the prognosis of the history so
 far (fleet prior from the other units' complete histories) is compared with the true RUL
@@ -22,9 +23,11 @@ far (fleet prior from the other units' complete histories) is compared with the 
 """
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +35,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..physics.faults import FAULT_UPPER
 from ..prognostics.config import BenchSettings, Settings, load_settings
 from ..prognostics.thresholds import FAULTS, threshold_values
 
@@ -144,10 +148,30 @@ def make_fleet(bench: BenchSettings | None = None, thresholds: dict[str, float] 
 
 
 # ----------------------------------------------------------------------------- diagnoses
+#: What a simulated diagnosis depends on: the code of these packages and these data files.
+DIAGNOSIS_CODE = ("physics", "identification", "signals")
+DIAGNOSIS_DATA = ("params.yaml", "model_error.yaml", "monitor.yaml")
+
+
+@functools.lru_cache(maxsize=1)
+def diagnosis_fingerprint() -> str:
+    """sha256 of the sources and data files a simulated diagnosis depends on (:data:`DIAGNOSIS_CODE`,
+    :data:`DIAGNOSIS_DATA`): any change to them keys a fresh cache entry, so a cached diagnosis is
+    never one of older code (a version string is not bumped on every change)."""
+    root = Path(__file__).resolve().parents[1]
+    files = sorted(f for pkg in DIAGNOSIS_CODE for f in (root / pkg).rglob("*.py"))
+    files += [root / "data" / n for n in DIAGNOSIS_DATA if (root / "data" / n).is_file()]
+    h = hashlib.sha256()
+    for f in files:
+        h.update(str(f.relative_to(root)).encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
 def _cache_key(k: np.ndarray, seed: int, method: str) -> tuple[str, dict]:
     import eha_health
     inputs = {"k": [round(float(v), 12) for v in k], "noise_seed": int(seed), "effects": ["sensor_noise"],
-              "method": method, "diagnosis_seed": 0, "version": eha_health.__version__}
+              "method": method, "diagnosis_seed": 0, "version": eha_health.__version__,
+              "code": diagnosis_fingerprint()}
     return hashlib.sha256(json.dumps(inputs, sort_keys=True).encode()).hexdigest(), inputs
 
 
@@ -217,6 +241,51 @@ def oracle_rul(u: Unit, t_h: float, thr: dict[str, float], n_paths: int = 400, s
         first = np.where(hit.any(1), p.t_h[j + 1:][np.argmax(hit, 1)] - t_h, np.inf)
         best = np.minimum(best, first)
     return best
+
+
+def law_known_rul(u: Unit, k: int, thr: dict[str, float], shape_known: bool, life_median_h: float) -> float:
+    """Median RUL [h] at test ``k`` of a predictor that knows the law of the unit's failing fault (and
+    its shape parameter if ``shape_known``, else the middle of the fleet's range) and its volatility,
+    and fits onset and life to the unit's own diagnoses up to test ``k``: a grid posterior on
+    (onset, L) under K ~ N(thr h((t - onset)/L), std^2 + nu mu), L log-uniform over 0.1 to 10 fleet
+    median lives; RUL = onset + L - t_k (mean path).
+    It bounds what learning the life from a unit's own partial history can give once its law is known."""
+    p = next(q for q in u.paths if q.fault == u.eol_fault)
+    fi = FAULTS.index(p.fault)
+    t, kk, sd = u.test_h[:k + 1], u.diag_k[:k + 1, fi], u.diag_std[:k + 1, fi]
+    life = np.geomspace(0.1 * life_median_h, 10 * life_median_h, 300)[:, None, None]
+    onset = np.linspace(0.0, t[-1], 150)[None, :, None]
+    shape, knee = (p.shape, p.knee) if shape_known else (
+        {"linear": 1.0, "exponential": 2.25, "power": 2.0, "two_phase": 2.5}[p.law], 0.5)
+    mu = thr[p.fault] * _mean_shape(p.law, (t - onset) / life, shape, knee)
+    var = sd ** 2 + p.volatility * np.maximum(mu, 1e-9)
+    ll = -0.5 * np.sum((kk - mu) ** 2 / var + np.log(var), -1)
+    w = np.exp(ll - ll.max()).ravel()
+    rul = ((onset + life)[..., 0] - t[-1]).ravel()
+    o = np.argsort(rul)
+    return float(rul[o][np.searchsorted(np.cumsum(w[o]) / w.sum(), 0.5)])
+
+
+def law_known_alpha_lambda(units: list[Unit], scores: list["UnitScore"], thr: dict[str, float],
+                           b: BenchSettings) -> dict:
+    """alpha-lambda of :func:`law_known_rul` (shape known, and shape at mid-range) at the scored points."""
+    from ..prognostics import metrics as M
+    out = {}
+    for key, known in (("law_and_shape_known", True), ("law_known", False)):
+        out[key] = {}
+        for lam in b.lambdas:
+            res = []
+            for u, sc in zip(units, scores):
+                tl = sc.t_h[0] + lam * (sc.eol_h - sc.t_h[0])
+                i = int(np.nonzero(sc.t_h <= tl)[0][-1])
+                k = int(np.searchsorted(u.test_h, sc.t_h[i]))
+                r = np.full(len(sc.t_h), np.nan)
+                r[i] = law_known_rul(u, k, thr, known, b.life_median_h)
+                res.append(M.alpha_lambda(sc.t_h[:i + 1], r[:i + 1], sc.eol_h, b.alpha, lam))
+            res = [v for v in res if v is not None]
+            out[key][str(lam)] = {"fraction": float(np.mean(res)) if res else float("nan"),
+                                  "misses": int(len(res) - sum(res)), "units": len(res)}
+    return out
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -415,7 +484,8 @@ def bench_rul(settings: Settings | None = None, cache_dir: str | Path = "out/rul
     t1 = time.perf_counter()
     scores = _predict_unit_points(units, s, thr)
     result = score_fleet(scores, s.bench)
-    result["oracle"] = {"alpha_lambda": oracle_alpha_lambda(units, scores, thr, s.bench)}
+    result["oracle"] = {"alpha_lambda": oracle_alpha_lambda(units, scores, thr, s.bench),
+                        **law_known_alpha_lambda(units, scores, thr, s.bench)}
     result["thresholds"] = thr
     result["diagnoses"] = diag
     result["prediction_wall_time_s"] = time.perf_counter() - t1
@@ -444,6 +514,13 @@ def format_result(r: dict) -> str:
         lines.append("| alpha-lambda of an oracle knowing each unit's law, life and volatility (lambda "
                      + " / ".join(o) + ") | " + " / ".join(f"{v['fraction']:.0%}" for v in o.values())
                      + " | - | - |")
+        for key, label in (("law_and_shape_known", "law and its shape parameter known, onset and life fitted to the "
+                                                   "unit's own diagnoses"),
+                           ("law_known", "law known (shape at mid-range), onset and life fitted")):
+            if key in r["oracle"]:
+                o = r["oracle"][key]
+                lines.append(f"| alpha-lambda of a predictor with the {label} (lambda " + " / ".join(o) + ") | "
+                             + " / ".join(f"{v['fraction']:.0%}" for v in o.values()) + " | - | - |")
     for key, label in (("ph_fraction_median", "prognostic horizon / life, median (first entry)"),
                        ("ph_stay_fraction_median", "prognostic horizon / life, median (stays in band)"),
                        ("ra_median", "relative accuracy, median over points"),
@@ -472,60 +549,51 @@ def synthetic_history_csv(path: str | Path, n_actuators: int = 1000, n_tests: in
     t = np.arange(n_tests) * 40.0
     with path.open("w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+        w.writerow(["actuator_id", "time_h", *(f"k_{f}" for f in FAULTS), *(f"std_{f}" for f in FAULTS)])
         for a in range(n_actuators):
             ks = [np.clip(6e-4 * math.exp(0.3 * rng.standard_normal()) * np.maximum(t - 100, 0)
-                          + rng.normal(0, 0.003, n_tests), 0, 1.5) for _ in FAULTS]
+                          + rng.normal(0, 0.003, n_tests), 0, FAULT_UPPER) for _ in FAULTS]
             for i in range(n_tests):
                 w.writerow([f"A{a:04d}", t[i], *(round(float(k[i]), 6) for k in ks), 0.003, 0.003, 0.003])
     return path
 
 
-def time_prognose(n_actuators: int = 1000, path: str | Path = "out/history_1000.csv") -> dict:
-    """Wall time of ``prognose`` (thresholds included, computed afresh) on a synthetic history."""
+def time_prognose(n_actuators: int = 1000, path: str | Path | None = None) -> dict:
+    """Wall time of ``prognose`` (thresholds included, computed afresh) on a synthetic history
+    (written to ``path``, default a temporary file)."""
+    import tempfile
     from ..prognostics.rul import prognose
     from ..prognostics.thresholds import _thresholds
-    p = synthetic_history_csv(path, n_actuators)
-    _thresholds.cache_clear()
-    t0 = time.perf_counter()
-    obj = prognose(p)
-    return {"actuators": len(obj["actuators"]), "series": 3 * n_actuators, "wall_time_s": time.perf_counter() - t0,
-            "history": str(p)}
+    with tempfile.TemporaryDirectory() as tmp:
+        p = synthetic_history_csv(path or Path(tmp) / f"history_{n_actuators}.csv", n_actuators)
+        _thresholds.cache_clear()
+        load0 = os.getloadavg()[0]
+        t0, c0 = time.perf_counter(), time.process_time()
+        obj = prognose(p)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    # on a shared machine the wall time grows with the load; the process's CPU time much less
+    return {"actuators": len(obj["actuators"]), "series": 3 * n_actuators, "wall_time_s": wall,
+            "cpu_time_s": cpu, "load_1min_before": load0, "load_1min_after": os.getloadavg()[0]}
 
 
-def main(argv=None) -> int:
-    """``python -m eha_health.bench.rul`` (the future ``eha-health bench rul``)."""
-    import argparse
-    from ..prognostics.config import PrognosticsError
-    ap = argparse.ArgumentParser(prog="python -m eha_health.bench.rul",
-                                 description="Run-to-failure fleet bench of the prognostics (issue 16).")
-    ap.add_argument("--units", type=int, help="fleet size (default: bench.n_units of prognostics.yaml)")
-    ap.add_argument("--seed", type=int, help="fleet seed (default: bench.seed)")
-    ap.add_argument("--settings", help="a user YAML merged over data/prognostics.yaml")
-    ap.add_argument("--cache", default="out/rul_cache", help="diagnosis cache directory")
-    ap.add_argument("--plot", default="out/bench_rul.png", help="PNG to write ('' for none)")
-    ap.add_argument("--json", dest="json_out", help="write the result object to this file")
-    ap.add_argument("--quiet", action="store_true")
-    ap.add_argument("--time-prognose", type=int, metavar="N",
-                    help="only time prognose on a synthetic N-actuator history (every fault degrading)")
-    a = ap.parse_args(argv)
-    if a.time_prognose:
-        print(json.dumps(time_prognose(a.time_prognose)))
-        return 0
-    over = {"bench": {k: v for k, v in (("n_units", a.units), ("seed", a.seed)) if v is not None}}
-    try:
-        s = load_settings(a.settings, over)
-        r = bench_rul(s, a.cache, a.plot or None, None if a.quiet else (lambda m: print(m, flush=True)))
-    except PrognosticsError as e:
-        print(f"error: {e}")
-        return 2
-    if a.json_out:
-        Path(a.json_out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.json_out).write_text(json.dumps(r, indent=1, default=float))
-    if a.quiet:
-        print(format_result(r))
-    return 0
+MARK_BEGIN = "<!-- bench rul: begin (made by the command below; do not edit by hand) -->"
+MARK_END = "<!-- bench rul: end -->"
 
 
-if __name__ == "__main__":
-    raise SystemExit(main())
+def write_markdown(r: dict, path: str | Path, command: str) -> None:
+    """The figures of a bench result, with the command that made them, into a Markdown file: between
+    :data:`MARK_BEGIN` and :data:`MARK_END` if the file has them (the rest is kept), else the whole file."""
+    import platform
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    block = "\n".join([MARK_BEGIN, "", f"`{command}` ({r['units']} units, {r['diagnoses']['diagnoses']} real "
+                       f"diagnoses; predictions {r['prediction_wall_time_s']:.0f} s on {platform.machine()}, "
+                       f"load {load:.1f}):", "", format_result(r), "", MARK_END])
+    path = Path(path)
+    text = path.read_text() if path.is_file() else ""
+    if MARK_BEGIN in text and MARK_END in text:
+        a, rest = text.split(MARK_BEGIN, 1)
+        text = a + block + rest.split(MARK_END, 1)[1]
+    else:
+        text = block + "\n"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)

@@ -2,17 +2,18 @@
 
 Commands by group: :mod:`.model` (simulate, calibrate, signatures), :mod:`.analysis`
 (diagnose, discrepancy, import), :mod:`.graph` (demo, record, launch, replay),
-:mod:`.bench`. Bad input exits with code 2 and one line that says what is wrong.
+:mod:`.prognostics` (history, prognose, thresholds), :mod:`.bench`, :mod:`.fleet` (fleet simulate,
+fleet diagnose). Bad input exits with code 2 and one line that says what is wrong.
 """
 from __future__ import annotations
 
 import argparse
 import sys
 
-from . import analysis, bench, graph, model
+from . import analysis, bench, fleet, graph, model, prognostics
 from .common import UsageError
 
-GROUPS = (model, bench, analysis, graph)
+GROUPS = (model, bench, analysis, graph, prognostics, fleet)
 
 
 def build_parser() -> argparse.ArgumentParser:

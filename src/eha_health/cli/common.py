@@ -82,6 +82,13 @@ def domain_option(help: str) -> argparse.ArgumentParser:
     return p
 
 
+def history_option() -> argparse.ArgumentParser:
+    p = _parent()
+    p.add_argument("--history", metavar="DB", help="SQLite health history (default: $EHA_HEALTH_HISTORY, else "
+                                                   "history.default_path of data/prognostics.yaml)")
+    return p
+
+
 def params_from(args, kind: str):
     """The parameter set of ``kind`` with --params and --effects (and --noise) applied."""
     p = load(kind, path=getattr(args, "params", None))

@@ -25,21 +25,48 @@ mount_compliance       compliance in series with the link (soft mount)    m/N
 flow_asymmetry         extend/retract gain asymmetry of valve and jack    -
 vibration_null_shift   null bias k <|a|> + b0 (shift under vibration)     A s^2/m, A
 =====================  =================================================  ============
+
+These act *in the loop* (the controller sees them; they move the actuator). The
+*recording* candidates (:data:`RECORDING`) are generated from the channel list
+(:data:`~eha_health.signals.channels.MEASURED`): for every measured channel an offset,
+a scale error, a time skew against the command and a first-order sensor lag
+(:mod:`~eha_health.signals.recording`), named ``<channel>_<kind>``. They change the
+recorded output only: the other channels do not show them, which is the evidence that
+tells ``position_skew`` from the in-loop ``sensor_delay``, or ``position_offset`` from
+``sensor_bias`` (the loop holds the surface off by a feedback bias, and the hinge
+load -- the pressure -- shows it).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from ..identification.knobs import Knob
+from ..identification.residual import CHANNEL_COLUMNS, CHANNEL_SCALES
 from ..physics.params import ModelParams
+from ..signals import recording
+from ..signals.channels import MEASURED, UNITS
+
+IN_LOOP, RECORDING_CHAIN = "in-loop", "recording"
 
 
 @dataclass(frozen=True)
 class Candidate:
-    """A missing-effect hypothesis: a mechanism and the knobs that size it."""
+    """A missing-effect hypothesis: a mechanism and the knobs that size it.
+
+    ``kind`` is :data:`IN_LOOP` (changes the model, needs a simulation) or
+    :data:`RECORDING_CHAIN` (transforms the recorded ``channel`` of a simulation's output).
+    """
     name: str
     mechanism: str
     knobs: tuple[Knob, ...]
+    kind: str = IN_LOOP
+    channel: str | None = None
+
+    def applies_to(self, channels) -> bool:
+        """A recording effect needs its channel in the record."""
+        return self.channel is None or self.channel in channels
 
 
 def _compressibility(p: ModelParams, compliance: float) -> ModelParams:
@@ -136,4 +163,83 @@ CANDIDATES: tuple[Candidate, ...] = (
                     lambda p, v: p.updated("controller", null_bias=v), doc="null bias at rest"))),
 )
 
+def _recorded(channel: str, kind: str):
+    col, fn = CHANNEL_COLUMNS[channel], recording.APPLY[kind]
+
+    def output(out: np.ndarray, value: float, rate: float) -> np.ndarray:
+        out = out.copy()
+        out[:, col] = fn(out[:, col], value, rate)
+        return out
+    return output
+
+
+#: Sizes of the recording effects: (lower, upper, typical) per kind; an offset in the channel's
+#: residual scale (position 0.1 mm, pressure 0.5 MPa, ...).
+RECORDING_SIZES = {"offset": (-50.0, 50.0, 1.0), "scale": (-0.3, 0.3, 0.02), "skew": (-0.02, 0.02, 1e-3),
+                   "lag": (0.0, 0.02, 1e-3)}
+_RECORDING_DOCS = {
+    "offset": "offset of the recorded {c} (transducer zero, amplifier offset)",
+    "scale": "scale error of the recorded {c} (transducer calibration, amplifier gain)",
+    "skew": "time skew of the recorded {c} against the command (logger channel timing), either sign",
+    "lag": "first-order lag of the {c} transducer or its anti-alias filter"}
+
+
+def corrected(response, model, x):
+    """A copy of ``response`` with the recording effects of ``model`` at ``x`` undone on its channels
+    (what a re-identification with those effects in the model must fit)."""
+    import copy
+    r = copy.copy(response)
+    for k, v in zip(model.knobs, np.asarray(x, float)):
+        if k.recording and v != k.off:
+            c, kind = k.name.rsplit("_", 1)
+            setattr(r, c, recording.undo(kind, np.asarray(getattr(r, c), float), float(v), response.sample_rate))
+    return r
+
+
+def recording_candidates(channels=MEASURED) -> tuple[Candidate, ...]:
+    """The measurement-chain candidates of ``channels``: offset, scale, skew, lag of each."""
+    out = []
+    for c in channels:
+        for kind in recording.KINDS:
+            lo, hi, typ = RECORDING_SIZES[kind]
+            unit = UNITS[c] if recording.UNIT[kind] == "channel" else recording.UNIT[kind]
+            if kind == "offset":
+                lo, hi, typ = (v * CHANNEL_SCALES[c] for v in (lo, hi, typ))
+            out.append(Candidate(f"{c}_{kind}", _RECORDING_DOCS[kind].format(c=c),
+                                 (Knob(f"{c}_{kind}", unit, lo, hi, typ, 0.0, output=_recorded(c, kind),
+                                       doc=_RECORDING_DOCS[kind].format(c=c)),),
+                                 RECORDING_CHAIN, c))
+    return tuple(out)
+
+
+def _lead(p: ModelParams, t_d: float) -> ModelParams:
+    """Controller lead: i = kp (e + T_d de/dt), i.e. a derivative gain kd = kp T_d."""
+    return p.updated("controller", kd=p.controller.kp * max(t_d, 0.0))
+
+
+def _first_stage(p: ModelParams, df: float | None = None, dz: float | None = None) -> ModelParams:
+    fs = p.first_stage
+    return p.updated("first_stage", **({"natural_frequency": fs.natural_frequency * (1.0 + df)} if df is not None else {}),
+                     **({"damping_ratio": fs.damping_ratio * (1.0 + dz)} if dz is not None else {}))
+
+
+#: Loop structure a rig's frequency response can ask for beyond its calibration band (the gain
+#: error above it): a lead in the controller and the valve's second-order (first-stage) dynamics.
+#: Offered to rig records (no floor of the FDI monitor was measured with them).
+STRUCTURAL: tuple[Candidate, ...] = (
+    Candidate("controller_lead", "a lead in the position controller: i = kp (e + T_d de/dt); the closed loop's "
+              "gain falls slower with frequency",
+              (Knob("lead_time", "s", 0.0, 0.02, 1e-3, 0.0, _lead, doc="T_d = kd / kp"),)),
+    Candidate("valve_dynamics", "the servovalve's second-order first stage: its natural frequency and damping "
+              "(a resonance near the loop's bandwidth lifts or drops the gain there)",
+              (Knob("valve_frequency_change", "-", -0.9, 3.0, 0.2, 0.0, lambda p, v: _first_stage(p, df=v),
+                    doc="relative change of the first-stage natural frequency"),
+               Knob("valve_damping_change", "-", -0.9, 3.0, 0.2, 0.0, lambda p, v: _first_stage(p, dz=v),
+                    doc="relative change of the first-stage damping ratio"))),
+)
+
+#: In-loop physics and every measured channel's recording chain.
+IN_LOOP_CANDIDATES = CANDIDATES
+RECORDING = recording_candidates()
+CANDIDATES = IN_LOOP_CANDIDATES + RECORDING
 BY_NAME = {c.name: c for c in CANDIDATES}

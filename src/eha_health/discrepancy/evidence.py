@@ -1,5 +1,8 @@
-"""The evidence for one candidate effect: projection on its signature, then a held-out refit.
+"""The evidence for one candidate effect: cheap screening, then (for the best few) a held-out refit.
 
+* *screen* (:func:`screen`): the candidate's signature, projection share, a coarse scan of its
+  first knob and the linearised fit, in one batch of runs (a recording effect's scan: one run);
+  :func:`sparse_order` regresses the residual on every candidate's signature at once;
 * *projection* (:func:`projection_share`): the share of the fit residual that the
   candidate's output sensitivity explains beyond what the base knobs already can,
   ``1 - |P_[J S]^perp r|^2 / |P_J^perp r|^2`` (J: base-knob Jacobian, S: the candidate's
@@ -25,7 +28,7 @@ from ..identification.problem import KnobModel, Problem
 from ..identification.residual import Residual
 from ..identification.result import FitResult
 from ..identification.uncertainty import autocorr_inflation
-from .candidates import Candidate
+from .candidates import RECORDING_CHAIN, Candidate
 from .report import CandidateEvidence
 from .settings import Settings
 
@@ -113,13 +116,19 @@ def _signature(rnd: Round, mc: KnobModel, cand: Candidate) -> np.ndarray:
                             for o, k in zip(mc.run(X), cand.knobs)])
 
 
-def _refit(rnd: Round, mc: KnobModel, cand: Candidate, anchors: list[np.ndarray]) -> FitResult:
+def _refit(rnd: Round, mc: KnobModel, cand: Candidate, anchors: list[np.ndarray], sc: "Screen | None" = None) -> FitResult:
     """Grid scan of the first knob (any further knob absent) with the base knobs held at each anchor
     (the current fit, and the whole-record fit: on a split record the base knobs may have absorbed
-    the effect differently), then local fits from the best distinct points; the best fit."""
+    the effect differently), then local fits from the best distinct points; the best fit. With the
+    candidate's screen ``sc``, its scanned points stand for the scan at the current fit, and the
+    other anchors get a scan of the screen's size (a recording effect: the full grid, free)."""
     st = rnd.settings
-    G = np.vstack([candidate_grid(a, cand, st.grid) for a in anchors])
-    costs = np.array([rnd.r_fit.cost(o) for o in mc.run(G)])
+    n = st.grid if sc is None or cand.kind == RECORDING_CHAIN else st.scan
+    scans = anchors if sc is None else [a for a in anchors if not np.array_equal(a, rnd.base.x)]
+    G = np.vstack([candidate_grid(a, cand, n) for a in scans]) if scans else np.zeros((0, len(mc.knobs)))
+    costs = rnd.r_fit.costs(mc.run(G)) if len(G) else np.zeros(0)
+    if sc is not None:
+        G, costs = np.vstack([G, sc.rows]), np.concatenate([costs, sc.costs])
     starts: list[np.ndarray] = []
     for i in np.argsort(costs):
         if all(np.max(np.abs(G[i] - s0) / np.maximum(mc.upper - mc.lower, 1e-300)) > 0.02 for s0 in starts):
@@ -130,13 +139,91 @@ def _refit(rnd: Round, mc: KnobModel, cand: Candidate, anchors: list[np.ndarray]
     return min((least_squares(problem, s0, max_nfev=st.max_nfev) for s0 in starts), key=lambda f: f.cost)
 
 
-def evaluate(rnd: Round, cand: Candidate, anchors: list[np.ndarray]) -> Result:
-    """Attribution evidence of one candidate against the round's base fit."""
+@dataclass
+class Screen:
+    """Cheap evidence of one candidate: its signature, the linearised size and a coarse scan.
+
+    ``x`` is the best point screened (base knobs + candidate knobs), ``out`` its output over
+    the whole record; ``signature`` the change of the fit residual per unit of each knob.
+    """
+    candidate: Candidate
+    model: KnobModel
+    signature: np.ndarray
+    projection: float
+    x: np.ndarray
+    out: np.ndarray
+    fit_cost: float
+    rows: np.ndarray          # every point screened
+    costs: np.ndarray         # their fit-part costs
+
+
+def screen(rnd: Round, cand: Candidate, n_scan: int) -> Screen:
+    """Signature, projection share and a coarse scan of one candidate: one batch of runs.
+
+    The rows are: each knob at its typical value (the signature), the first knob over
+    :func:`knob_grid` (``n_scan`` points; a recording effect's whole grid, which shares one
+    simulation), then the linearised fit -- base and candidate knobs from least squares of the
+    fit residual on ``[J S]`` -- in a second batch of one row.
+    """
     mc = rnd.model.extended(cand.knobs)
+    nb, nk = len(rnd.base.x), len(cand.knobs)
+    x_off = np.concatenate([rnd.base.x, [k.off for k in cand.knobs]])
+    X = np.repeat(x_off[None], nk, axis=0)
+    for j, k in enumerate(cand.knobs):
+        X[j, nb + j] = k.typical
+    G = candidate_grid(rnd.base.x, cand, rnd.settings.grid if cand.kind == RECORDING_CHAIN else n_scan)
+    outs = mc.run(np.vstack([X, G]))
+    r0 = rnd.base.residual
+    S = np.column_stack([(rnd.r_fit(o) - r0) / (k.typical - k.off) for o, k in zip(outs[:nk], cand.knobs)])
+    J = rnd.base.jacobian
+    A = np.column_stack([J, S])
+    coef, *_ = np.linalg.lstsq(A, -r0, rcond=None)
+    x_lin = x_off.copy()
+    x_lin[rnd.base.free] += coef[:J.shape[1]]
+    x_lin[nb:] += coef[J.shape[1]:]
+    x_lin = np.clip(x_lin, mc.lower, mc.upper)
+    out_lin = mc.run(x_lin)[0]
+    rows = np.vstack([X, G, x_lin[None]])
+    allouts = np.concatenate([outs, out_lin[None]])
+    costs = rnd.r_fit.costs(allouts)
+    i = int(np.argmin(costs))
+    return Screen(cand, mc, S, projection_share(J, S, r0), rows[i], allouts[i], float(costs[i]), rows, costs)
+
+
+def sparse_order(J: np.ndarray, screens: list[Screen], r: np.ndarray, terms: int = 3) -> list[str]:
+    """Greedy sparse regression of the fit residual on every candidate's signature (orthogonal
+    matching pursuit, SINDy's idea of a few active terms out of a library): the candidates in
+    the order they enter, beyond the span of the base knobs' Jacobian ``J``."""
+    def reduce(A, v):
+        if A.shape[1] == 0:
+            return v
+        c, *_ = np.linalg.lstsq(A, v, rcond=None)
+        return v - A @ c
+    chosen: list[int] = []
+    base = J
+    for _ in range(min(terms, len(screens))):
+        rr = reduce(base, r)
+        best, gain = None, 0.0
+        for i, sc in enumerate(screens):
+            if i in chosen:
+                continue
+            Sp = np.column_stack([reduce(base, s) for s in sc.signature.T])
+            rest = reduce(Sp, rr)
+            g = float(rr @ rr - rest @ rest)
+            if g > gain:
+                best, gain = i, g
+        if best is None:
+            break
+        chosen.append(best)
+        base = np.column_stack([base, screens[best].signature])
+    return [screens[i].candidate.name for i in chosen]
+
+
+def _judge(rnd: Round, cand: Candidate, mc: KnobModel, x: np.ndarray, out: np.ndarray, fit_cost: float,
+           share: float, std: dict, refit: bool, pruned_by: str = "") -> CandidateEvidence:
+    """The evidence record of a candidate at its fitted point ``x`` (output ``out``)."""
     nb = len(rnd.base.x)
-    share = projection_share(rnd.base.jacobian, _signature(rnd, mc, cand), rnd.base.residual)
-    best = _refit(rnd, mc, cand, anchors)
-    rss_held = rnd.r_held.cost(mc.run(best.x)[0])
+    rss_held = rnd.r_held.cost(out)
     ratio_h = rss_held / rnd.rss_held_base if rnd.rss_held_base > 0 else 1.0
     # what is above noise and floor on the held-out part: where the base is already there, the
     # effect must keep it there (ratio 0), else it must remove a share of the excess
@@ -144,15 +231,32 @@ def evaluate(rnd: Round, cand: Candidate, anchors: list[np.ndarray]) -> Result:
     excess = max(rss_held - noise, 0.0) / max(rnd.rss_held_base - noise, 1e-3 * rnd.rss_held_base, 1e-300)
     k = len(cand.knobs)
     dic = rnd.n_eff * float(np.log(max(ratio_h, 1e-300))) + k * float(np.log(rnd.n_fit))
-    sd = best.std(autocorr_inflation(best.residual, len(rnd.r_fit.channels)))
-    ev = CandidateEvidence(
+    return CandidateEvidence(
         name=cand.name, mechanism=cand.mechanism, round=rnd.number, projection=share,
-        fit_ratio=best.cost / rnd.base.cost if rnd.base.cost > 0 else 1.0, held_out_ratio=ratio_h,
+        fit_ratio=fit_cost / rnd.base.cost if rnd.base.cost > 0 else 1.0, held_out_ratio=ratio_h,
         held_out_excess_ratio=excess, delta_ic=dic,
-        parameters={kn.name: float(best.x[nb + j]) for j, kn in enumerate(cand.knobs)},
-        std={kn.name: sd.get(kn.name, float("nan")) for kn in cand.knobs},
-        units={kn.name: kn.unit for kn in cand.knobs})
-    return Result(ev, mc, best)
+        parameters={kn.name: float(x[nb + j]) for j, kn in enumerate(cand.knobs)},
+        std={kn.name: std.get(kn.name, float("nan")) for kn in cand.knobs},
+        units={kn.name: kn.unit for kn in cand.knobs}, kind=cand.kind, channel=cand.channel, refit=refit,
+        pruned_by=pruned_by)
+
+
+def screened(rnd: Round, sc: Screen, reason: str) -> Result:
+    """Evidence of a candidate pruned after screening (no refit): judged at its best screened point."""
+    ev = _judge(rnd, sc.candidate, sc.model, sc.x, sc.out, sc.fit_cost, sc.projection, {}, False, reason)
+    fit = FitResult(sc.x, sc.model.names, np.arange(len(sc.x)), sc.fit_cost, 0, output=sc.out)
+    return Result(ev, sc.model, fit)
+
+
+def evaluate(rnd: Round, cand: Candidate, anchors: list[np.ndarray], sc: Screen | None = None) -> Result:
+    """Attribution evidence of one candidate against the round's base fit (a full refit)."""
+    mc = sc.model if sc is not None else rnd.model.extended(cand.knobs)
+    share = sc.projection if sc is not None else \
+        projection_share(rnd.base.jacobian, _signature(rnd, mc, cand), rnd.base.residual)
+    best = _refit(rnd, mc, cand, anchors, sc)
+    out = mc.run(best.x)[0]
+    sd = best.std(autocorr_inflation(best.residual, len(rnd.r_fit.channels)))
+    return Result(_judge(rnd, cand, mc, best.x, out, best.cost, share, sd, True), mc, best)
 
 
 def rank(result: Result) -> tuple:
@@ -168,15 +272,15 @@ def rediagnosed(model: KnobModel, x: np.ndarray, n_base: int, rediagnose) -> tup
 
     Returns the new knob vector and the model runs the identification took.
     """
-    xb, spent = rediagnose(model.params_at(x)[0])
+    xb, spent = rediagnose(model, x)
     alt = np.array(x, float)
     alt[:n_base] = np.clip(xb, model.lower[:n_base], model.upper[:n_base])
     return alt, spent
 
 
-def retry_from_rediagnosis(rnd: Round, results: list[Result], candidates, before: FitResult, rediagnose,
-                           say) -> tuple[list[Result], int]:
-    """Round-1 candidates evaluated again from the base knobs re-identified with each in the model.
+def retry_from_rediagnosis(rnd: Round, results: list[Result], candidates, anchors: list[np.ndarray], n_base: int,
+                           rediagnose, say) -> tuple[list[Result], int]:
+    """Candidates evaluated again from the ``n_base`` base knobs re-identified with each in the model.
 
     Only a candidate whose re-identified model (its first knob at its typical value, any other
     absent) lowers the fit-part residual power to the fit gate is evaluated again (the others
@@ -188,14 +292,17 @@ def retry_from_rediagnosis(rnd: Round, results: list[Result], candidates, before
     out, runs = [], 0
     for res in results:
         cand = by_name[res.evidence.name]
-        say(f"round 1: {cand.name} -- base re-identified with it in the model")
-        probe = [k.typical if j == 0 else k.off for j, k in enumerate(cand.knobs)]
-        x, spent = rediagnosed(res.model, np.concatenate([rnd.base.x, probe]), nb, rediagnose)
+        say(f"round {rnd.number}: {cand.name} -- base re-identified with it in the model")
+        # the probe: an in-loop knob at its typical value; a recording effect at its refitted size
+        # (the data are corrected by it)
+        k0 = cand.knobs[0]
+        probe = [res.evidence.parameters[k0.name] if k0.recording else k0.typical] + [k.off for k in cand.knobs[1:]]
+        x, spent = rediagnosed(res.model, np.concatenate([rnd.base.x, probe]), n_base, rediagnose)
         runs += spent + 1
         if rnd.r_fit.cost(res.model.run(x)[0]) > rnd.settings.fit_ratio * rnd.base.cost:
             out.append(res)
             continue
-        new = evaluate(rnd, cand, [rnd.base.x, before.x, x[:nb]])
+        new = evaluate(rnd, cand, list(anchors) + [x[:nb]])
         runs += new.model.runs
         out.append(new if rank(new) < rank(res) else res)
     return out, runs

@@ -4,12 +4,18 @@
    FDI test, the calibrated nominal parameters for a rig) and the analysis of its residual
    (:mod:`~eha_health.signals.residuals`).
 2. **Attribution**, on a split of the record (the first ``fit_fraction`` of the samples to
-   fit, the rest held out), for every candidate of the library (:mod:`.candidates`): the
-   projection and the held-out refit of :mod:`.evidence`. The ranking is by dIC. The best
+   fit, the rest held out), for every candidate of the library (:mod:`.candidates`, in-loop
+   physics and every recorded channel's measurement chain): cheap evidence first -- the
+   candidate's signature, its projection share, a coarse scan and the linearised fit (one batch
+   each; a recording effect's scan shares one simulation) and a sparse regression of the
+   residual on every signature -- then the full held-out refit of :mod:`.evidence` only for the
+   best screened few and the sparse regression's first; the others are judged at their best
+   screened point, and the report says what pruned them. The ranking is by dIC. The best
    candidate is *selected* only when the residual is structured, dIC < 0, and the held-out
    and fit residual powers drop below the ratios of :class:`~.settings.Settings`. If none is,
-   on a structured residual, each candidate is evaluated once more from the base knobs
-   re-identified globally with it in the model (another basin). Then the loop repeats with
+   on a structured residual, each refitted candidate is evaluated once more from the base knobs
+   re-identified globally with it in the model (another basin; a recording effect is undone on
+   the data the re-identification fits). Then the loop repeats with
    it included, up to ``max_effects``; from the second effect on, the held-out power itself
    (not only its excess over noise and floor) must drop below the held-out ratio.
 3. **After**: the selected effects added, every knob re-fitted together (from the better of
@@ -40,9 +46,12 @@ from ..identification.result import FitResult
 from ..identification.uncertainty import autocorr_inflation
 from ..physics.params import ModelParams, load
 from ..physics.sequence import FDISequence
+from ..signals.datachecks import check_channel
 from ..signals.residuals import ResidualAnalysis, analyse, rest_noise_level
-from .candidates import CANDIDATES, Candidate
-from .evidence import Result, Round, evaluate, rank, rediagnosed, rescan, retry_from_rediagnosis
+from .candidates import CANDIDATES, Candidate, corrected
+from .evidence import (Result, Round, evaluate, rank, rediagnosed, rescan, retry_from_rediagnosis, screen, screened,
+                       sparse_order)
+from .structure import locate
 from .report import NO_MISSING_EFFECT, UNEXPLAINED, DiscrepancyReport, State
 from .settings import Settings, fdi_settings
 
@@ -74,13 +83,22 @@ class _Split:
         return analyse(self.record.t, self.record.channels, self.channels(out), self.segments,
                        self.settings.floor_with(effects), noise=self.noise)
 
-    def state(self, f: FitResult, out_held: np.ndarray, effects: list[str], truth: dict | None) -> State:
-        """``out_held``: the output of the model fitted on the fit part (its held-out prediction)."""
+    def state(self, f: FitResult, out_held: np.ndarray, effects: list[str], truth: dict | None,
+              noise: dict[str, float]) -> State:
+        """``out_held``: the output of the model fitted on the fit part (its held-out prediction);
+        ``noise``: each channel's noise level [SI]."""
         values = f.values()
         errors = {k: abs(values[k] - float(v)) for k, v in truth.items() if k in values} if truth else None
         infl = autocorr_inflation(f.residual, len(self.r_final.channels))
+        floor = self.settings.floor_with(effects)
+        rms_fit, rms_held = self.r_fit.rms(out_held), self.r_held.rms(out_held)
+
+        def excess(rms):
+            return {c: float(np.sqrt(max(v ** 2 - noise.get(c, 0.0) ** 2 - floor.get(c, 0.0) ** 2, 0.0)))
+                    for c, v in rms.items()}
         return State(effects=list(effects), values=values, std=f.std(infl), rms=self.r_all.rms(f.output),
-                     rms_held_out=self.r_held.rms(out_held), fitness=self.r_all.cost(f.output), errors=errors)
+                     rms_held_out=rms_held, fitness=self.r_all.cost(f.output), errors=errors, rms_fit=rms_fit,
+                     excess_fit=excess(rms_fit), excess_held_out=excess(rms_held))
 
 
 def _check(max_effects: int, final_fit: str, settings: Settings) -> None:
@@ -114,15 +132,13 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
             break
         rnd = Round(number, model, base, split.r_fit, r_held, out_base, settings, held_noise, tuple(selected))
         anchors = [base.x] if number > 1 else [base.x, before.x]
-        results: list[Result] = []
-        for i, cand in enumerate(remaining):
-            say(f"round {number}: candidate {i + 1}/{len(remaining)} {cand.name}")
-            results.append(evaluate(rnd, cand, anchors))
-            runs += results[-1].model.runs
-        results.sort(key=rank)
-        if number == 1 and structured and rediagnose is not None and not rnd.passes(results[0].evidence, structured):
-            results, spent = retry_from_rediagnosis(rnd, results, remaining, before, rediagnose, say)
+        results = _round(rnd, remaining, anchors, say)
+        runs += sum(r.model.runs for r in results)
+        refitted = [r for r in results if r.evidence.refit]
+        if structured and rediagnose is not None and not rnd.passes(results[0].evidence, structured):
+            refitted, spent = retry_from_rediagnosis(rnd, refitted, remaining, anchors, len(before.x), rediagnose, say)
             runs += spent
+            results = refitted + [r for r in results if not r.evidence.refit]
             results.sort(key=rank)
         evidence += [r.evidence for r in results]
         top = results[0]
@@ -142,8 +158,45 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
         remaining = [c for c in remaining if c.name != top.evidence.name]
         res = split.analyse(top.fit.output, selected)
         structured = res.structured
-        say(f"selected {top.evidence.name}; residual now {res.verdict}")
+        say(f"selected {top.evidence.name}; residual now {res.verdict} ({runs + model.runs} model runs)")
     return model, base, out_base, selected, evidence, runs
+
+
+def _round(rnd: Round, remaining: list[Candidate], anchors, say) -> list[Result]:
+    """One round's evidence: every candidate screened (signature, projection, coarse scan: one
+    batch each, and a recording effect's scan shares one simulation), the best few refitted in
+    full, the others judged at their screened point. Sorted by :func:`~.evidence.rank`."""
+    st = rnd.settings
+    say(f"round {rnd.number}: screening {len(remaining)} candidates")
+    screens = [screen(rnd, c, st.scan) for c in remaining]
+    sparse = sparse_order(rnd.base.jacobian, screens, rnd.base.residual)
+    by_fit = sorted(screens, key=lambda sc: sc.fit_cost)
+    full = {sc.candidate.name for sc in by_fit[:st.refits]} | set(sparse[:st.sparse_refits])
+    results: list[Result] = []
+    for i, sc in enumerate(by_fit):
+        name = sc.candidate.name
+        if name in full:
+            say(f"round {rnd.number}: refit {sum(r.evidence.refit for r in results) + 1}/{len(full)} {name}")
+            res = evaluate(rnd, sc.candidate, anchors, sc)
+        else:
+            res = screened(rnd, sc, f"screen: fit x{sc.fit_cost / max(rnd.base.cost, 1e-300):.3f} at its best "
+                                    f"scanned point, rank {i + 1} of {len(screens)}; projection {sc.projection:.2f}; "
+                                    f"not in the first {st.sparse_refits} of the sparse regression")
+        if name in sparse:
+            res.evidence.sparse_rank = sparse.index(name) + 1
+        results.append(res)
+    results.sort(key=rank)
+    while not results[0].evidence.refit:
+        # a pruned candidate ranks first on its screened point: it gets its full refit (only a
+        # refitted model can become the next round's base)
+        top = results[0]
+        sc = next(s for s in screens if s.candidate.name == top.evidence.name)
+        say(f"round {rnd.number}: refit {sc.candidate.name} (ranked first after screening)")
+        new = evaluate(rnd, sc.candidate, anchors, sc)
+        new.evidence.sparse_rank = top.evidence.sparse_rank
+        results[0] = new
+        results.sort(key=rank)
+    return results
 
 
 def _final_fit(split: _Split, model: KnobModel, base: FitResult, n_base: int, rediagnose) -> tuple[FitResult, int]:
@@ -165,7 +218,7 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
              candidates: tuple[Candidate, ...] = CANDIDATES, max_effects: int = 2,
              settings: Settings | None = None, truth: dict | None = None, final_fit: str = "all",
              progress: Callable[[str], None] | None = None,
-             rediagnose: Callable[[ModelParams], tuple[np.ndarray, int]] | None = None) -> DiscrepancyReport:
+             rediagnose: Callable[[KnobModel, np.ndarray], tuple[np.ndarray, int]] | None = None) -> DiscrepancyReport:
     """Run the discrepancy loop on one record.
 
     Parameters
@@ -182,9 +235,9 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
         Fit the before/after states on the whole record (an FDI diagnosis) or on
         the fit part only (a prediction test: the held-out part stays unseen).
     rediagnose : callable, optional
-        Global identification of the base knobs with a given model, returning them
-        and the model runs it took (FDI: the deterministic diagnosis). When round 1
-        selects nothing on a structured residual, each candidate is tried once more
+        Global identification of the base knobs with a given model at a knob vector
+        (its recording effects undone on the data), returning them and the model runs it
+        took (FDI: the deterministic diagnosis). When a round selects nothing on a structured residual, each candidate is tried once more
         from the base knobs identified *with it in the model*: an effect can move the
         fit to another basin that a local search from the current one cannot reach
         (measured: compressibility with backlash, a limit cycle whose phase only
@@ -204,24 +257,33 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     before = least_squares(Problem(model, split.r_final), x)
     base = least_squares(Problem(model, split.r_fit), before.x)
     res_before = split.analyse(before.output, [])
-    state_before = split.state(before, base.output, [], truth)
-    say(f"residual: {res_before.verdict}")
+    noise = {c: ch.noise_sd for c, ch in res_before.channels.items()}
+    state_before = split.state(before, base.output, [], truth, noise)
+    say(f"residual: {res_before.verdict} ({model.runs} model runs, {time.perf_counter() - t0:.1f} s)")
+    candidates = [c for c in candidates if c.applies_to(record.channels)]
 
     model, base, out_base, selected, evidence, runs = _attribute(
         split, model, before, base, res_before, candidates, max_effects, rediagnose, say)
     after, res_after = before, res_before
     if selected:
+        say("final fit of every knob with the selected effects")
         after, spent = _final_fit(split, model, base, len(base_knobs), rediagnose)
         runs += spent
         res_after = split.analyse(after.output, selected)
     verdict = ("model lacks: " + ", ".join(selected)) if selected else \
         UNEXPLAINED if res_before.structured else NO_MISSING_EFFECT
+    unexplained = locate(split.r_final, before, res_before, split.segments, len(base_knobs)) \
+        if verdict == UNEXPLAINED else None
+    checks = [line for c, y in record.channels.items()
+              for line in check_channel(c, y, split.channels(after.output)[c] - y, noise[c], record.command,
+                                        record.sample_rate)]
     return DiscrepancyReport(
-        before=state_before, after=split.state(after, out_base, selected, truth), candidates=evidence,
+        before=state_before, after=split.state(after, out_base, selected, truth, noise), candidates=evidence,
         selected=selected, verdict=verdict, residual_before=res_before, residual_after=res_after,
         wall_time_s=time.perf_counter() - t0, runs=runs + model.runs, t=record.t, measured=dict(record.channels),
         fitted_before=split.channels(before.output), fitted_after=split.channels(after.output),
-        split_time_s=float(record.t[split.index]))
+        split_time_s=float(record.t[split.index]), unexplained=unexplained, data_checks=checks,
+        pruned=[e.name for e in evidence if not e.refit])
 
 
 def fdi_segments(record: Record, sequence: FDISequence | None = None) -> dict[str, np.ndarray]:
@@ -244,9 +306,10 @@ def analyse_fdi_test(response, max_effects: int = 2, seed: int = 0, params: Mode
     if diagnosis is None:
         diagnosis = diagnose(response, seed=seed, params=params, progress=progress)
 
-    def rediagnose(p: ModelParams) -> tuple[np.ndarray, int]:
-        # the fast global method: one per candidate, only when round 1 finds nothing on a structured residual
-        d = diagnose(response, method="deterministic", params=p)
+    def rediagnose(model: KnobModel, x: np.ndarray) -> tuple[np.ndarray, int]:
+        # the fast global method: one per refitted candidate, only when a round finds nothing on a
+        # structured residual; the model's recording effects are undone on the data it fits
+        d = diagnose(corrected(response, model, x), method="deterministic", params=model.params_at(x)[0])
         return np.array(d.faults.as_tuple()), int(d.evaluations)
 
     return run_loop(record, params, FAULT_KNOBS, np.array(diagnosis.faults.as_tuple()),

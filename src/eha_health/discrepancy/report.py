@@ -31,6 +31,11 @@ class CandidateEvidence:
     std: dict[str, float]
     units: dict[str, str]
     selected: bool = False
+    kind: str = "in-loop"         # 'in-loop' (changes the model) or 'recording' (changes a recorded channel)
+    channel: str | None = None    # the recorded channel of a recording effect
+    refit: bool = True            # False: pruned after the cheap evidence, judged at its screened point
+    pruned_by: str = ""           # the evidence that pruned it
+    sparse_rank: int | None = None  # order of entry in the sparse regression of the residual (1 = first)
 
 
 @dataclass
@@ -43,6 +48,11 @@ class State:
     rms_held_out: dict[str, float]  # per-channel RMS on the held-out part, model fitted on the fit part
     fitness: float                # weighted residual power over the whole record
     errors: dict[str, float] | None = None   # |estimate - truth| where the truth is known
+    # the model fitted on the fit part, per channel [SI]: RMS on the fit part, and the excess over
+    # noise and floor, sqrt(max(rms^2 - noise^2 - floor^2, 0)), on the fit and the held-out part
+    rms_fit: dict[str, float] = field(default_factory=dict)
+    excess_fit: dict[str, float] = field(default_factory=dict)
+    excess_held_out: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -63,6 +73,10 @@ class DiscrepancyReport:
     split_time_s: float = 0.0
     # rig records: position/command gain and phase per band, measured and modelled (frequency.compare)
     frequency_response: list | None = None
+    # where an unexplained structure lives and what it may bias (see :func:`.structure.locate`)
+    unexplained: dict | None = None
+    data_checks: list[str] = field(default_factory=list)   # quantisation, clipping, interference
+    pruned: list[str] = field(default_factory=list)        # candidates judged on screening evidence only
 
     def as_dict(self) -> dict:
         return {"verdict": self.verdict, "selected": self.selected,
@@ -71,7 +85,8 @@ class DiscrepancyReport:
                 "residual_before": self.residual_before.as_dict(),
                 "residual_after": self.residual_after.as_dict(),
                 "split_time_s": self.split_time_s, "wall_time_s": self.wall_time_s, "runs": self.runs,
-                "frequency_response": self.frequency_response}
+                "frequency_response": self.frequency_response, "unexplained": self.unexplained,
+                "data_checks": self.data_checks, "pruned": self.pruned}
 
 
 def format_report(rep: DiscrepancyReport, what: str = "") -> str:
@@ -84,6 +99,17 @@ def format_report(rep: DiscrepancyReport, what: str = "") -> str:
         k, u = DISPLAY_UNITS[c]
         lines.append(f"  {c:9s} {rep.before.rms[c] * k:10.4g} {u:3s} {rep.after.rms[c] * k:10.4g} {u:3s} "
                      f"{rep.before.rms_held_out[c] * k:12.4g} {u:3s} {rep.after.rms_held_out[c] * k:11.4g} {u:3s}")
+    lines.append(f"  {'channel':9s} {'excess over noise and floor (model fitted on the fit part):':s}")
+    lines.append(f"  {'':9s} {'fit before':>14s} {'fit after':>14s} {'held-out before':>16s} {'held-out after':>15s}")
+    for c in rep.before.excess_fit:
+        k, u = DISPLAY_UNITS[c]
+        cells = [rep.before.excess_fit[c], rep.after.excess_fit.get(c, float("nan")),
+                 rep.before.excess_held_out[c], rep.after.excess_held_out.get(c, float("nan"))]
+        lines.append(f"  {c:9s} " + " ".join(f"{v * k:10.4g} {u:3s}" for v in cells))
+    if rep.unexplained:
+        lines.append("  unexplained structure: " + "; ".join(rep.unexplained["where"]))
+        lines += [f"    {b}" for b in rep.unexplained["bias"]]
+    lines += [f"  data check: {d}" for d in rep.data_checks]
     lines.append(f"  fitness (weighted residual power): before {rep.before.fitness:.4g}, after {rep.after.fitness:.4g}")
     lines.append(f"  {'parameter':22s} {'before':>12s} {'after':>12s} {'+/- (after)':>12s}" +
                  (f" {'err before':>11s} {'err after':>10s}" if rep.before.errors else ""))
@@ -97,8 +123,8 @@ def format_report(rep: DiscrepancyReport, what: str = "") -> str:
                  "noise and floor; projection = share of the fit residual its signature explains):")
     for c in rep.candidates:
         pars = ", ".join(f"{k}={v:.4g}+/-{c.std[k]:.2g} {c.units[k]}" for k, v in c.parameters.items())
-        mark = " <- selected" if c.selected else ""
-        lines.append(f"   r{c.round} {c.name:17s} dIC {c.delta_ic:9.1f}  held-out x{c.held_out_ratio:6.3f} "
+        mark = " <- selected" if c.selected else ("" if c.refit else " (screened only)")
+        lines.append(f"   r{c.round} {c.name:20s} {c.kind:9s} dIC {c.delta_ic:9.1f}  held-out x{c.held_out_ratio:6.3f} "
                      f"(excess x{min(c.held_out_excess_ratio, 99.0):6.3f})  fit x{c.fit_ratio:6.3f}  "
                      f"projection {c.projection:5.2f}  {pars}{mark}")
     if rep.frequency_response:

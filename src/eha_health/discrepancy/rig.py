@@ -18,7 +18,7 @@ from ..identification.knobs import Knob
 from ..identification.record import Record
 from ..physics.params import ModelParams, load
 from ..signals import frequency
-from .candidates import CANDIDATES
+from .candidates import CANDIDATES, STRUCTURAL
 from .loop import quantile_segments, run_loop
 from .report import DiscrepancyReport
 from .settings import Settings
@@ -35,8 +35,9 @@ RIG_KNOBS = (
          apply=lambda p, v: p.updated("jack", viscous=v), doc="jack viscous friction"),
 )
 
-#: Candidates that make sense without the aerodynamic surface and its link.
-RIG_CANDIDATES = tuple(c for c in CANDIDATES if c.name not in ("load_stiffness", "mount_compliance"))
+#: Candidates that make sense without the aerodynamic surface and its link, and the loop
+#: structure a rig's frequency response may ask for (candidates.STRUCTURAL).
+RIG_CANDIDATES = tuple(c for c in CANDIDATES if c.name not in ("load_stiffness", "mount_compliance")) + STRUCTURAL
 
 
 def rig_params(base: ModelParams | None = None, dt: float = 1e-4) -> ModelParams:
@@ -68,7 +69,7 @@ def analyse_rig(response, max_effects: int = 2, fit_fraction: float = 0.7, progr
     """
     rec = rig_record(response)
     # a rig record is long (one run ~0.1 s): a coarser grid and one local fit per candidate
-    settings = Settings(fit_fraction=fit_fraction, grid=grid, starts=1, max_nfev=20, rest_noise=True)
+    settings = Settings(fit_fraction=fit_fraction, grid=grid, scan=6, starts=1, max_nfev=20, rest_noise=True)
     x0 = np.array([k.typical for k in RIG_KNOBS])
     rep = run_loop(rec, rig_params(), RIG_KNOBS, x0, quantile_segments(rec), RIG_CANDIDATES, max_effects,
                    settings, None, "fit", progress)

@@ -17,8 +17,11 @@ class Settings:
                                        # floor, with / without the effect, is <= this
     fit_ratio: float = 0.8             # ... and RSS_fit(aug)/RSS_fit(base) <= this
     grid: int = 48                     # grid points of a candidate's knob before the local fit
-    starts: int = 3                    # local fits per candidate, from the best distinct grid points
+    starts: int = 2                    # local fits per candidate, from the best distinct grid points
     max_nfev: int = 30                 # iterations of each local fit
+    scan: int = 12                     # grid points of an in-loop candidate's screening scan
+    refits: int = 2                    # candidates refitted in full after screening: the best screened,
+    sparse_refits: int = 1             # ... and the first of the sparse regression
     floor: dict = field(default_factory=dict)   # per-channel residual floor of the model [SI]
     effect_floor: dict = field(default_factory=dict)  # {candidate: per-channel floor} once it is added
     rest_noise: bool = False           # noise also measured where the command rests (a rig's coloured

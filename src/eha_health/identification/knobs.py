@@ -24,7 +24,9 @@ class Knob:
     """One fitted scalar of the monitor model [``unit``], within ``[lo, hi]``.
 
     ``apply(params, value)`` returns the changed parameter set; a fault coefficient has
-    ``fault`` set instead (one of :data:`~eha_health.physics.faults.FAULT_NAMES`).
+    ``fault`` set instead (one of :data:`~eha_health.physics.faults.FAULT_NAMES`); a
+    measurement-chain knob has ``output(out, value, rate)`` instead, which changes a simulated
+    output ``[n, N_OUT]`` (sampled at ``rate`` [Hz]) after the fact and needs no simulation.
     """
     name: str
     unit: str
@@ -36,6 +38,12 @@ class Knob:
     fault: str | None = None
     doc: str = ""
     step_share: float = STEP_SHARE      # finite-difference step as a share of ``typical``
+    output: Callable | None = None      # measurement-chain knob: out[n, N_OUT], value, rate -> out
+
+    @property
+    def recording(self) -> bool:
+        """True when the knob acts on the recorded output, not on the model."""
+        return self.output is not None
 
     @property
     def step(self) -> float:

@@ -21,13 +21,17 @@ from .jacobian import jacobian
 from .problem import Problem
 from .result import FitResult
 
+#: Distance [in typical magnitudes] within which a solver coordinate is the start itself: scipy
+#: moves a start on a bound by 1e-10 of the solver variable; a real step is far larger.
+START_SNAP = 1e-9
+
 
 def least_squares(problem: Problem, x0, xtol: float = 1e-8, ftol: float = 1e-10, gtol: float = 1e-10,
                   max_nfev: int = 40, history: list | None = None, output: bool = True) -> FitResult:
     """Bounded least squares of ``problem.objective`` (a Residual) over the free knobs, from ``x0``.
 
-    Knobs are scaled by their typical magnitudes (``x_scale``); ``history`` (optional) gets the
-    squared residual norm of every point the solver evaluates. The result holds the residual and
+    The solver runs on the knobs' offsets from ``x0`` in their typical magnitudes (a start on a
+    bound stays on it). ``history`` (optional) gets the squared residual norm of every point the solver evaluates. The result holds the residual and
     Jacobian at the solution and, with ``output``, the model output there (one more run when the
     solver's last trial point was not its solution).
     """
@@ -40,36 +44,53 @@ def least_squares(problem: Problem, x0, xtol: float = 1e-8, ftol: float = 1e-10,
         r, J, out = jacobian(problem, x0)
         return FitResult(x0, m.names, free, float(r @ r), m.runs - runs0, time.perf_counter() - t0, out, r, J)
     scale = m.typical[free]
+    origin = x0[free] - scale
+    u0 = np.ones(len(free))
     cache: dict = {}
 
-    def at(z):
-        # keyed relative to each knob's magnitude (a leakage of 5e-12 must not round to 0)
-        key = tuple(np.round(np.asarray(z) / scale, 12))
+    # The solver works on u = (x - x0) / typical + 1, two reasons. scipy's TRF moves a start that
+    # lies on a bound inside by 1e-10 * max(1, |bound|) of its own variable (make_strictly_feasible):
+    # in [unit] that was 1e-10 absolute, so a leakage knob (typical 5e-12 m^3/(s Pa)) started at 20x
+    # its typical value; in u it is 1e-10 of the knob's typical magnitude, and a coordinate within
+    # START_SNAP of the start is the start itself, evaluated exactly there. And TRF's first trust
+    # radius is the norm of the scaled start: a start near 0 (a knob on its 0 bound) gave a radius of
+    # ~1e-10 and a fit that never left its start; with the start at u = 1 the first radius is about
+    # one typical magnitude per knob, the search scale a Knob declares, wherever the start lies.
+    def point(u):
+        u = np.asarray(u, float)
+        z = np.where(np.abs(u - u0) <= START_SNAP, x0[free], origin + u * scale)
+        return problem.full(x0, z), tuple(np.round((z - origin) / scale, 12))
+
+    def at(u):
+        x, key = point(u)
         if key not in cache:
             cache.clear()
-            cache[key] = jacobian(problem, problem.full(x0, z))
+            cache[key] = (x, *jacobian(problem, x))
         return cache[key]
 
-    def fun(z):
-        r = at(z)[0]
+    def fun(u):
+        r = at(u)[1]
         if history is not None:
             history.append(float(r @ r))
         return r
 
-    start = at(x0[free])   # scipy moves a start on a bound inside it: the exact start is the reference
+    start = at(u0)[1:]   # the exact start is the reference the result must not be worse than
     with warnings.catch_warnings():
         # on a rough cost (stick-slip) TRF's trust-region arithmetic can divide by zero; the
         # outcome is checked below, so its RuntimeWarnings are noise on the user's terminal
         warnings.simplefilter("ignore", RuntimeWarning)
-        sol = optimize.least_squares(fun, x0[free], jac=lambda z: at(z)[1], bounds=(m.lower[free], m.upper[free]),
-                                     method="trf", x_scale=scale, xtol=xtol, ftol=ftol, gtol=gtol,
+        # x0 lies within the bounds: rounding of (bound - origin) / scale must not put u0 outside
+        lb = np.minimum((m.lower[free] - origin) / scale, u0)
+        ub = np.maximum((m.upper[free] - origin) / scale, u0)
+        sol = optimize.least_squares(fun, u0, jac=lambda u: at(u)[2] * scale, bounds=(lb, ub),
+                                     method="trf", x_scale=1.0, xtol=xtol, ftol=ftol, gtol=gtol,
                                      max_nfev=max_nfev)
-    key = tuple(np.round(np.asarray(sol.x) / scale, 12))
-    x = problem.full(x0, sol.x)
+    x, key = point(sol.x)
+    x = problem.clip(x)
     if key in cache:
-        r, J, out = cache[key]
+        x, r, J, out = cache[key]
     else:   # the last trial was rejected: scipy holds the residual and Jacobian at its solution
-        r, J = sol.fun, sol.jac
+        r, J = sol.fun, sol.jac / scale
         out = m.run(x)[0] if output else None
     if float(r @ r) > float(start[0] @ start[0]):   # never hand back worse than the start
         (r, J, out), x = start, x0.copy()

@@ -67,7 +67,7 @@ class KnobModel:
         for k, v in zip(self.knobs, np.asarray(x, float)):
             if k.fault:
                 f[k.fault] = max(float(v), 0.0)
-            else:
+            elif not k.recording:
                 p = k.apply(p, float(v))
         return p, Faults(**f)
 
@@ -75,10 +75,24 @@ class KnobModel:
         return pack(*self.params_at(x))
 
     def run(self, X) -> np.ndarray:
-        """Outputs ``[len(X), n, N_OUT]`` of the knob vectors ``X`` (rows), in parallel."""
+        """Outputs ``[len(X), n, N_OUT]`` of the knob vectors ``X`` (rows), in parallel.
+
+        Rows that differ only in measurement-chain knobs share one simulation (``runs`` counts
+        simulations): such a knob's Jacobian column or grid scan costs no model run.
+        """
         X = np.atleast_2d(np.asarray(X, float))
-        self.runs += len(X)
-        return simulate_packed(np.stack([self.packed(x) for x in X]), self.record.command, self.record.load)
+        P = np.stack([self.packed(x) for x in X])
+        P_u, inverse = np.unique(P, axis=0, return_inverse=True)
+        self.runs += len(P_u)
+        outs = simulate_packed(P_u, self.record.command, self.record.load)[np.ravel(inverse)]
+        rec = [(i, k) for i, k in enumerate(self.knobs) if k.recording]
+        if rec:
+            rate = self.record.sample_rate
+            for b, x in enumerate(X):
+                for i, k in rec:
+                    if x[i] != k.off:
+                        outs[b] = k.output(outs[b], float(x[i]), rate)
+        return outs
 
     def extended(self, extra: tuple[Knob, ...]) -> "KnobModel":
         """The same base and record with further knobs (an added effect)."""

@@ -35,6 +35,20 @@ class Run:
     notes: list[str] = field(default_factory=list)
 
 
+#: Metadata record of a test the monitor appended to its health history: ``actuator_id``, ``time_h``
+#: (operating hours), ``sim_time_s`` (window start stamp), ``usage`` (if given), ``history`` (the file).
+HISTORY_META = "history/test_{}"
+
+
+def history_times(path: str | Path, test_id: int | None) -> dict[str, float]:
+    """``time_h``, ``usage``, ``sim_time_s`` of test ``test_id`` from an MCAP log's :data:`HISTORY_META`
+    record (the keys it has; {} without one)."""
+    if test_id is None:
+        return {}
+    rec = read_bag(path, topics=[]).metadata.get(HISTORY_META.format(test_id)) or {}
+    return {k: float(rec[k]) for k in ("time_h", "usage", "sim_time_s") if rec.get(k) not in (None, "", "None")}
+
+
 def truth_values(record: dict[str, str] | None) -> dict[str, float] | None:
     """The fault coefficients of a ``truth/test_<id>`` metadata record (strings) as numbers."""
     if not record:

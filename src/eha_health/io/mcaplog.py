@@ -49,7 +49,7 @@ from mcap_ros2.decoder import DecoderFactory
 # mcap.Writer options we need); written against mcap-ros2-support 0.6.0, covered by the tests
 from mcap_ros2._dynamic import serialize_dynamic
 
-__all__ = ["Bag", "BagError", "BagWriter", "read_bag", "schema_text"]
+__all__ = ["Bag", "BagError", "BagWriter", "bag_metadata", "read_bag", "schema_text"]
 
 _MAGIC = b"\x89MCAP0\r\n"
 _RECORD = struct.Struct("<BQ")  # opcode, body length
@@ -725,6 +725,24 @@ class _Reader:
             raise BagError(f"{self.path}: {ch.topic}: message {len(out)} does not decode as {typ} "
                            f"({type(e).__name__}: {e})") from None
         self.times[ch.topic].append(msg.log_time)
+
+
+def bag_metadata(path) -> dict[str, dict[str, str]]:
+    """The metadata records of an MCAP log (name -> key/value strings, a later record wins).
+
+    Read through the summary's metadata index (a fraction of a millisecond) so a batch client
+    can plan thousands of bags; a file without a usable summary (cut off, damaged) is read
+    with :func:`read_bag` instead, which also names what is wrong with it.
+    """
+    from mcap.reader import make_reader
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            if reader.get_summary() is not None:
+                return {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    except (McapError, OSError, ValueError, struct.error):
+        pass
+    return read_bag(path, topics=[]).metadata
 
 
 def read_bag(path, topics: Iterable[str] | None = None, *, raw: bool = False) -> Bag:

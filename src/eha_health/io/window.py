@@ -24,6 +24,56 @@ class WindowError(ValueError):
     """The recorded window cannot be diagnosed; the message says why."""
 
 
+class IncompleteWindow(WindowError):
+    """The samples of a channel stop before the window's end (the source stopped: a plant killed
+    mid-test, a link gone): the window is reported incomplete, not diagnosed on what arrived."""
+
+
+#: Gap fill: at most this fraction of a channel's samples may be filled [-].
+MAX_FILL_FRACTION = 0.10
+
+
+def _runs(missing: np.ndarray) -> tuple[int, int]:
+    """Longest run of consecutive True in ``missing`` and the index where it starts."""
+    d = np.diff(np.concatenate([[0], missing.astype(np.int8), [0]]))
+    starts, ends = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    if len(starts) == 0:
+        return 0, 0
+    i = int(np.argmax(ends - starts))
+    return int(ends[i] - starts[i]), int(starts[i])
+
+
+def fill_gaps(name: str, grid: np.ndarray, s: Samples, start_ns: int, max_fill: int) -> tuple[np.ndarray, int]:
+    """``s`` on ``grid`` and the number of samples filled.
+
+    Missing samples (lost messages) are filled by linear interpolation between their neighbours
+    when no run of them is longer than ``max_fill`` samples and at most :data:`MAX_FILL_FRACTION`
+    of the channel is missing; otherwise :class:`WindowError` names the gap. A channel whose
+    samples stop before the window end (a tail longer than ``max_fill``) raises
+    :class:`IncompleteWindow`.
+    """
+    have = np.isin(grid, s.stamps)
+    missing = ~have
+    n_miss = int(missing.sum())
+    if n_miss == 0:
+        return s.values, 0
+    n = len(grid)
+    tail = n - 1 - int(np.flatnonzero(have)[-1]) if have.any() else n
+    if tail > max_fill:
+        raise IncompleteWindow(f"{name}: samples stop at {_t(s.stamps[-1], start_ns)}, {tail} of {n} missing to the "
+                               f"window end at {_t(grid[-1], start_ns)} (the source stopped answering)")
+    longest, at = _runs(missing)
+    if max_fill <= 0:
+        raise WindowError(f"{name}: {n_miss} sample(s) missing, first at {_t(grid[missing][0], start_ns)}")
+    if longest > max_fill or n_miss > MAX_FILL_FRACTION * n:
+        raise WindowError(f"{name}: {n_miss} sample(s) missing, longest gap {longest} at {_t(grid[at], start_ns)} "
+                          f"(gap fill limit: runs of {max_fill}, {MAX_FILL_FRACTION:.0%} of the window)")
+    out = np.empty(n)
+    out[have] = s.values
+    out[missing] = np.interp(grid[missing].astype(float), s.stamps.astype(float), s.values)
+    return out, n_miss
+
+
 @dataclass
 class Samples:
     """One channel in arrival order: stamps [ns] and values [SI]."""
@@ -54,7 +104,8 @@ def _check_order(name: str, s: Samples, start: int) -> None:
 
 
 def assemble(channels: dict[str, Samples], start_ns: int, end_ns: int,
-             sequence: FDISequence | None = None, meta: dict | None = None, record: bool = False) -> Response:
+             sequence: FDISequence | None = None, meta: dict | None = None, record: bool = False,
+             max_fill: int = 0) -> Response:
     """Build the :class:`Response` of the window ``[start_ns, end_ns]`` (stamps, inclusive).
 
     ``channels`` maps 'command' and the :data:`MEASURED` names to their samples
@@ -95,21 +146,21 @@ def assemble(channels: dict[str, Samples], start_ns: int, end_ns: int,
     covered = (grid[-1] - grid[0] + step) / NS
     if not record and covered < seq.duration - 1e-9:
         raise WindowError(f"window too short: {covered:.3f} s recorded, the FDI sequence lasts {seq.duration:g} s")
-    out = {}
+    out, filled = {}, {}
     n = len(grid)
     for name in MEASURED + (("load",) if record else ()):
         if name not in cut:
             out[name] = np.full(n, np.nan)
             continue
         s = cut[name]
-        have = np.isin(grid, s.stamps)
-        if not have.all():
-            raise WindowError(f"{name}: {int((~have).sum())} sample(s) missing, first at {_t(grid[~have][0], start_ns)}")
         extra = ~np.isin(s.stamps, grid)
         if extra.any():
             raise WindowError(f"{name}: {int(extra.sum())} sample(s) at stamps with no command, "
                               f"first at {_t(s.stamps[extra][0], start_ns)}")
-        out[name] = s.values
+        out[name], k = fill_gaps(name, grid, s, start_ns, max_fill)
+        if k:
+            filled[name] = k
     load = out.pop("load", None)
     return Response(t=(grid - start_ns) / NS, command=cut["command"].values, spool=np.full(n, np.nan),
-                    meta=dict(meta or {}), load=None if load is None or np.isnan(load).all() else load, **out)
+                    meta={**(meta or {}), **({"filled": filled} if filled else {})},
+                    load=None if load is None or np.isnan(load).all() else load, **out)

@@ -3,7 +3,8 @@
 Levels follow the largest fault coefficient against ``warn_level`` and ``error_level``; a
 discrepancy report that names a missing effect, or a structured residual no candidate
 explains, raises an OK to WARN (the coefficients may be biased) and is said in the message.
-The key values are what ``/diagnostics`` carries (docs/interfaces.md).
+The key values are what ``/diagnostics`` carries (docs/interfaces.md); :func:`escalate` adds the
+prognosis (:mod:`.prognosis`): P(failure before the next check) may raise the level further.
 """
 from __future__ import annotations
 
@@ -40,11 +41,21 @@ class HealthPolicy:
         """A window that could not be diagnosed (bad data, or the identification failed)."""
         return Verdict("ERROR", f"test {test_id} not diagnosed: {error}", {"test_id": test_id, "error": error})
 
-    def verdict(self, test_id: int, window_start_ns: int, diagnosis, report=None) -> Verdict:
-        """The verdict of a diagnosed window (``report``: the discrepancy loop's, if it ran)."""
+    def incomplete(self, test_id: int, why: str) -> Verdict:
+        """A window whose samples stopped before its end (a source killed or gone): WARN, not diagnosed."""
+        return Verdict("WARN", f"test {test_id} incomplete, not diagnosed: {why}",
+                       {"test_id": test_id, "incomplete": why})
+
+    def verdict(self, test_id: int, window_start_ns: int, diagnosis, report=None, filled: dict | None = None) -> Verdict:
+        """The verdict of a diagnosed window (``report``: the discrepancy loop's, if it ran; ``filled``:
+        samples filled per channel, said in the message)."""
         k = diagnosis.faults.as_tuple()
         level, msg = self.level(k)
         values = {"test_id": test_id}
+        if filled:
+            n = sum(filled.values())
+            msg += f"; {n} lost sample(s) filled (" + ", ".join(f"{c} {k_}" for c, k_ in filled.items()) + ")"
+            values["filled_samples"] = n
         if report is not None:
             values["discrepancy"] = report.verdict
             lacks = discrepancy_text(report)
@@ -60,6 +71,17 @@ class HealthPolicy:
                        "wall_time_s": diagnosis.wall_time_s, "window_start_s": window_start_ns / NS,
                        "warnings": "; ".join(diagnosis.warnings) or "none"})
         return Verdict(level, msg, values)
+
+
+_RANK = {"OK": 0, "WARN": 1, "ERROR": 2}
+
+
+def escalate(v: Verdict, level: str, why: str | None, values: dict) -> Verdict:
+    """``v`` with more key values (the prognosis), raised to ``level`` if that is worse, ``why`` in the message."""
+    msg = v.message if not why else (why + "; " + v.message if _RANK[level] > _RANK.get(v.level, 0)
+                                     else v.message + "; " + why)
+    worst = level if _RANK[level] > _RANK.get(v.level, 0) else v.level
+    return Verdict(worst, msg, {**v.values, **values})
 
 
 def discrepancy_text(report) -> str | None:

@@ -17,6 +17,9 @@ from ..signals.response import Response
 
 #: Samples kept per channel (60 s at 1 kHz): older ones can no longer be in a window.
 BUFFER = 60_000
+#: Windows kept open (a mark seen, not yet taken): a stream of stray or hostile marks must not
+#: grow the monitor without bound; the oldest open window is dropped past this.
+MAX_OPEN = 100
 CHANNELS = ("command",) + MEASURED
 
 
@@ -37,7 +40,9 @@ class Window:
 class WindowTracker:
     """Per-channel sample buffers and the queue of windows waiting for their samples."""
 
-    def __init__(self, buffer: int = BUFFER):
+    def __init__(self, buffer: int = BUFFER, max_open: int = MAX_OPEN):
+        self.max_open = max_open
+        self.dropped: list[int] = []          # ids of open windows dropped for max_open
         self.buffers = {c: deque(maxlen=buffer) for c in CHANNELS}
         self.last = {c: -1 for c in CHANNELS}
         self.windows: dict[int, Window] = {}
@@ -49,6 +54,12 @@ class WindowTracker:
         self.last[channel] = max(self.last[channel], ns)
 
     def window(self, test_id: int) -> Window:
+        if test_id not in self.windows and len(self.windows) >= self.max_open:
+            old = next((k for k, w in self.windows.items() if not w.queued), None)
+            if old is not None:
+                self.windows.pop(old)
+                self.dropped.append(old)
+                del self.dropped[:-self.max_open]
         return self.windows.setdefault(test_id, Window(test_id))
 
     def mark(self, ns: int, event: str, test_id: int, now: float, timeout_s: float) -> Window:
@@ -74,10 +85,11 @@ class WindowTracker:
             out.append(self.queue.popleft())
         return out
 
-    def assemble(self, w: Window) -> Response:
-        """The window's response; ``WindowError`` (a ``ValueError``) names what is wrong with it."""
+    def assemble(self, w: Window, max_fill: int = 0) -> Response:
+        """The window's response (lost samples filled up to runs of ``max_fill``); ``WindowError``
+        (a ``ValueError``; ``IncompleteWindow`` when a channel stopped) names what is wrong with it."""
         chans = {c: Samples.of(list(b)) for c, b in self.buffers.items()}
-        w.response = assemble(chans, w.start, w.end, meta={"test_id": w.id})
+        w.response = assemble(chans, w.start, w.end, meta={"test_id": w.id}, max_fill=max_fill)
         return w.response
 
     def forget(self, test_id: int) -> None:

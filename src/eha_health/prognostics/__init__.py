@@ -10,7 +10,7 @@ Nothing here imports ROS. Modules (docs/prognostics.md has the method and the fi
 * :mod:`.metrics`     -- PHM metrics (alpha-lambda, prognostic horizon, RA, CRA, convergence, ...)
 * :mod:`.config`      -- settings and :class:`PrognosticsError` (bad input: CLI exit code 2)
 
-Intended CLI wiring: ``history add|list|import|repair`` -> :class:`HistoryStore` methods,
+CLI (:mod:`eha_health.cli.prognostics`): ``history add|list|import|repair`` -> :class:`HistoryStore` methods,
 ``prognose`` -> :func:`prognose` / :func:`plot_prognosis`, ``thresholds`` ->
 :func:`failure_thresholds`; the run-to-failure validation harness (``bench rul``) is
 :mod:`eha_health.bench.rul`.

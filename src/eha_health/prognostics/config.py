@@ -18,6 +18,8 @@ from typing import Any
 
 import yaml
 
+from ..physics.faults import FAULT_UPPER
+
 
 class PrognosticsError(ValueError):
     """Bad input to the prognostics (history, settings, arguments): a one-line message naming it.
@@ -218,8 +220,8 @@ def _validate(s: Settings) -> None:
     known = {"linear", "exponential", "power", "wiener"}
     if not s.models.names or set(s.models.names) - known:
         raise PrognosticsError(f"models.names: choose from {sorted(known)}")
-    if not 0 < s.thresholds.default <= s.thresholds.search_max:
-        raise PrognosticsError("thresholds: need 0 < default <= search_max")
+    if not 0 < s.thresholds.default <= s.thresholds.search_max <= FAULT_UPPER:
+        raise PrognosticsError(f"thresholds: need 0 < default <= search_max <= {FAULT_UPPER} (the identification bound)")
 
 
 def settings_table(obj: Any, prefix: str = "") -> list[tuple[str, Any, str, str]]:

@@ -365,9 +365,44 @@ def life_estimate(p: FaultPrediction) -> float:
 
 
 # ----------------------------------------------------------------------------- prognose
+def _predict_fault(hist, ids: list[str], fi: int, thr: float, s: Settings) -> list[FaultPrediction]:
+    """Predictions of fault ``fi`` for actuators ``ids`` from the tests since its last repair."""
+    f = FAULTS[fi]
+    plist = []
+    for a in ids:
+        h = hist.actuators[a]
+        since = h.since_repair(f)
+        p, _ = prepare_fault(h.time_h[since], h.k[since, fi], h.std[since, fi], thr, int(since.sum()), s)
+        plist.append(p)
+    predict_series(plist, np.full(len(plist), thr), fi, s)
+    return plist
+
+
+def _prior_of(plist: list[FaultPrediction], s: Settings) -> FleetPrior | None:
+    """Fleet prior from the members with enough points since onset."""
+    lives = [life_estimate(p) for p in plist if p.series is not None and p.n_points >= s.fleet.min_points]
+    return fleet_prior(lives, s.fleet.min_members)
+
+
+def fleet_priors(history, settings: Settings | None = None,
+                 thresholds: dict[str, float] | None = None) -> dict[str, FleetPrior | None]:
+    """The fleet prior of each fault from every actuator of a history (what :func:`prognose` applies).
+
+    Fitting the whole fleet is the expensive part of a one-actuator prognosis: a caller that
+    prognoses one actuator after each test (the monitor) computes this once and passes it as
+    ``prognose(..., priors=)`` until the rest of the fleet changes.
+    """
+    from .store import as_history
+    s = settings or load_settings()
+    hist = as_history(history, s)
+    thr = thresholds or threshold_values(s)
+    ids = sorted(hist.actuators)
+    return {f: _prior_of(_predict_fault(hist, ids, fi, thr[f], s), s) for fi, f in enumerate(FAULTS)}
+
+
 def prognose(history, actuator: str | None = None, next_check_h: float | None = None,
              settings: Settings | None = None, thresholds: dict[str, float] | None = None,
-             details: bool = False):
+             details: bool = False, priors: dict[str, FleetPrior | None] | None = None):
     """RUL per fault and overall of every actuator (or one) of a history: the ``prognose --json`` object.
 
     ``history``: a :class:`store.History`, a :class:`store.HistoryStore`, or a path to a SQLite
@@ -375,7 +410,8 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
     "overall": F}}}``; F has ``model``, ``rul_median_h``, ``rul_p05_h``, ``rul_p95_h``,
     ``p_fail_next``, ``threshold``, ``n_tests`` (null RUL with a ``reason`` where none can be
     given; overall also ``dominant_fault``). With ``details=True`` returns ``(object,
-    {actuator: {fault|'overall': FaultPrediction}})`` for plots. Raises :class:`PrognosticsError`.
+    {actuator: {fault|'overall': FaultPrediction}})`` for plots. ``priors`` (from
+    :func:`fleet_priors`) with ``actuator``: only that actuator is fitted. Raises :class:`PrognosticsError`.
     """
     from .store import as_history
     s = settings or load_settings()
@@ -390,26 +426,20 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
         raise PrognosticsError(f"unknown actuator {actuator!r} (the history has: {known}"
                                f"{', ...' if len(hist.actuators) > 10 else ''})")
     thr = thresholds or threshold_values(s)
-    ids = sorted(hist.actuators)
+    ids = [actuator] if actuator is not None and priors is not None else sorted(hist.actuators)
     preds: dict[str, dict[str, FaultPrediction]] = {a: {} for a in ids}
     for fi, f in enumerate(FAULTS):
-        plist = []
-        for a in ids:
-            h = hist.actuators[a]
-            since = h.since_repair(f)
-            p, _ = prepare_fault(h.time_h[since], h.k[since, fi], h.std[since, fi], thr[f], int(since.sum()), s)
-            plist.append(p)
-            preds[a][f] = p
-        thr_arr = np.full(len(plist), thr[f])
-        predict_series(plist, thr_arr, fi, s)
+        plist = _predict_fault(hist, ids, fi, thr[f], s)
         # fleet prior from the members (enough points), applied to the actuators with few points
-        lives = [life_estimate(p) for p in plist if p.series is not None and p.n_points >= s.fleet.min_points]
-        prior = fleet_prior(lives, s.fleet.min_members)
-        for p in plist:
+        prior = _prior_of(plist, s) if priors is None else priors.get(f)
+        for a, p in zip(ids, plist):
+            preds[a][f] = p
             apply_fleet_prior(p, prior, s)
     out = {}
     detail = {}
     for a in ids:
+        if actuator is not None and a != actuator:
+            continue
         h = hist.actuators[a]
         rate = h.usage_per_hour()
         faults = {f: summary(preds[a][f], nc, rate) for f in FAULTS}
@@ -422,9 +452,8 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
             o["note"] = ov.note
         for key in ("n_points", "onset_h", "k_last", "std_last"):
             o.pop(key, None)
-        if actuator is None or a == actuator:
-            out[a] = {"faults": faults, "overall": o}
-            detail[a] = {**preds[a], "overall": ov}
+        out[a] = {"faults": faults, "overall": o}
+        detail[a] = {**preds[a], "overall": ov}
     obj = {"actuators": out}
     return (obj, detail) if details else obj
 

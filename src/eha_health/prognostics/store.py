@@ -1,6 +1,6 @@
 """Health history: every diagnosis of every actuator, in one SQLite file (WAL, transactions).
 
-CLI wiring (after the merge): ``eha-health history add RUN.csv|BAG.mcap --actuator ID
+CLI (:mod:`eha_health.cli.prognostics`): ``eha-health history add RUN.csv|BAG.mcap --actuator ID
 [--time-h T] [--usage U]`` -> :meth:`HistoryStore.add_diagnosis`; ``history list
 [--actuator ID] [--json]`` -> :meth:`HistoryStore.list_tests`; ``history import FILE.csv`` ->
 :meth:`HistoryStore.import_csv`; ``history repair --actuator ID --fault gm|fsj|bkl|all
@@ -13,7 +13,7 @@ Schema version 1 (``PRAGMA user_version`` and table ``schema_version``):
 * ``tests``: one row per diagnosis: ``actuator_id``, ``time_h`` (operating hours, the
   prognostics clock), ``wall_time_utc`` (ISO 8601), ``sim_time_s`` (ROS / simulated stamp
   [s], optional), ``usage`` and ``usage_unit`` (flight hours or cycles, optional), ``k_gm,
-  k_fsj, k_bkl`` in [0, 1.5] and ``std_gm, std_fsj, std_bkl`` >= 0, ``method``, ``cost`` and
+  k_fsj, k_bkl`` in [0, ``physics.faults.FAULT_UPPER``] and ``std_gm, std_fsj, std_bkl`` >= 0, ``method``, ``cost`` and
   ``fit_rms`` (JSON, per-channel RMS: fit quality), ``discrepancy`` (verdict), ``warnings``
   (JSON), ``source_path``, ``source_hash`` (sha256 of the recording, or of the diagnosis
   inputs when there is no file; UNIQUE: the same recording twice adds no row),
@@ -39,15 +39,15 @@ from pathlib import Path
 
 import numpy as np
 
+from ..physics.faults import FAULT_KEYS, FAULT_UPPER
+from ..signals.channels import MEASURED
 from .config import PrognosticsError, Settings, load_settings
 
 SCHEMA_VERSION = 1
-K_MAX = 1.5
-FAULT_NAMES = ("gm", "fsj", "bkl")
-MAINT_FAULTS = FAULT_NAMES + ("all",)
+MAINT_FAULTS = FAULT_KEYS + ("all",)
 ACTIONS = ("repair", "replace")
 
-_SCHEMA = """
+_SCHEMA = f"""
 CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL, applied_utc TEXT NOT NULL);
 CREATE TABLE IF NOT EXISTS tests (
     id INTEGER PRIMARY KEY,
@@ -57,9 +57,9 @@ CREATE TABLE IF NOT EXISTS tests (
     sim_time_s REAL,
     usage REAL,
     usage_unit TEXT,
-    k_gm REAL NOT NULL CHECK (k_gm BETWEEN 0 AND 1.5),
-    k_fsj REAL NOT NULL CHECK (k_fsj BETWEEN 0 AND 1.5),
-    k_bkl REAL NOT NULL CHECK (k_bkl BETWEEN 0 AND 1.5),
+    k_gm REAL NOT NULL CHECK (k_gm BETWEEN 0 AND {FAULT_UPPER!r}),
+    k_fsj REAL NOT NULL CHECK (k_fsj BETWEEN 0 AND {FAULT_UPPER!r}),
+    k_bkl REAL NOT NULL CHECK (k_bkl BETWEEN 0 AND {FAULT_UPPER!r}),
     std_gm REAL NOT NULL CHECK (std_gm >= 0),
     std_fsj REAL NOT NULL CHECK (std_fsj >= 0),
     std_bkl REAL NOT NULL CHECK (std_bkl >= 0),
@@ -77,7 +77,7 @@ CREATE TABLE IF NOT EXISTS maintenance (
     id INTEGER PRIMARY KEY,
     actuator_id TEXT NOT NULL,
     time_h REAL NOT NULL CHECK (time_h >= 0),
-    fault TEXT NOT NULL CHECK (fault IN ('gm', 'fsj', 'bkl', 'all')),
+    fault TEXT NOT NULL CHECK (fault IN ({', '.join(repr(f) for f in MAINT_FAULTS)})),
     action TEXT NOT NULL CHECK (action IN ('repair', 'replace')),
     wall_time_utc TEXT NOT NULL,
     note TEXT,
@@ -86,8 +86,10 @@ CREATE TABLE IF NOT EXISTS maintenance (
 CREATE INDEX IF NOT EXISTS tests_by_actuator ON tests (actuator_id, time_h);
 """
 
-TEST_COLUMNS = ("actuator_id", "time_h", "wall_time_utc", "sim_time_s", "usage", "usage_unit", "k_gm", "k_fsj",
-                "k_bkl", "std_gm", "std_fsj", "std_bkl", "method", "cost", "fit_rms", "discrepancy", "warnings",
+K_COLUMNS = tuple(f"k_{f}" for f in FAULT_KEYS)
+STD_COLUMNS = tuple(f"std_{f}" for f in FAULT_KEYS)
+TEST_COLUMNS = ("actuator_id", "time_h", "wall_time_utc", "sim_time_s", "usage", "usage_unit", *K_COLUMNS,
+                *STD_COLUMNS, "method", "cost", "fit_rms", "discrepancy", "warnings",
                 "source_path", "source_hash", "software_version")
 
 
@@ -157,10 +159,10 @@ def _check_record(r: HealthRecord, where: str) -> None:
         raise PrognosticsError(f"{where}: empty actuator id")
     if not isinstance(r.time_h, (int, float)) or not math.isfinite(r.time_h) or r.time_h < 0:
         raise PrognosticsError(f"{where}: time_h must be a finite number of hours >= 0, got {r.time_h!r}")
-    for name, v in zip(FAULT_NAMES, r.k):
-        if not isinstance(v, (int, float)) or not math.isfinite(v) or not 0.0 <= v <= K_MAX:
-            raise PrognosticsError(f"{where}: k_{name}={v!r} outside [0, {K_MAX}]")
-    for name, v in zip(FAULT_NAMES, r.std):
+    for name, v in zip(FAULT_KEYS, r.k):
+        if not isinstance(v, (int, float)) or not math.isfinite(v) or not 0.0 <= v <= FAULT_UPPER:
+            raise PrognosticsError(f"{where}: k_{name}={v!r} outside [0, {FAULT_UPPER}]")
+    for name, v in zip(FAULT_KEYS, r.std):
         if not isinstance(v, (int, float)) or not math.isfinite(v):
             raise PrognosticsError(f"{where}: std_{name} is {v!r} (standard errors must be finite)")
         if v < 0:
@@ -232,7 +234,7 @@ def read_history_csv(path: str | Path, settings: Settings | None = None) -> list
     with path.open(newline="") as f:
         reader = csv.DictReader(f)
         cols = [c.strip() for c in (reader.fieldnames or [])]
-        missing = [c for c in ("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl") if c not in cols]
+        missing = [c for c in ("actuator_id", "time_h", *K_COLUMNS) if c not in cols]
         if missing:
             raise PrognosticsError(f"{path}: missing column(s) {', '.join(missing)}")
         reader.fieldnames = cols
@@ -242,9 +244,9 @@ def read_history_csv(path: str | Path, settings: Settings | None = None) -> list
             if None in row:
                 raise PrognosticsError(f"{where}: more values than columns")
             row = {k: (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
-            k = tuple(_float(row[f"k_{n}"], where, f"k_{n}") for n in FAULT_NAMES)
+            k = tuple(_float(row[f"k_{n}"], where, f"k_{n}") for n in FAULT_KEYS)
             std = tuple(_float(row[f"std_{n}"], where, f"std_{n}") if row.get(f"std_{n}") not in (None, "")
-                        else None for n in FAULT_NAMES)
+                        else None for n in FAULT_KEYS)
             usage = _float(row["usage"], where, "usage") if row.get("usage") not in (None, "") else None
             r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k,
                              tuple(0.0 if v is None else v for v in std), usage=usage, method="import")
@@ -314,9 +316,15 @@ class HistoryStore:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
             self.conn = sqlite3.connect(str(self.path), timeout=60.0, isolation_level=None)
+            # text the store did not write (a damaged page) must not raise mid-query
+            self.conn.text_factory = lambda b: b.decode("utf-8", "replace")
             ver = self.conn.execute("PRAGMA user_version").fetchone()[0]
-        except sqlite3.DatabaseError as e:
-            raise PrognosticsError(f"{self.path}: not a history database ({e})") from None
+            # a damaged file must be refused here, not fail later mid-query (fuzzing found both)
+            check = self.conn.execute("PRAGMA quick_check").fetchone()[0]
+            if check != "ok":
+                raise sqlite3.DatabaseError("integrity check: " + " ".join(str(check).split()))
+        except (sqlite3.DatabaseError, UnicodeDecodeError) as e:   # sqlite's own message may quote damaged bytes
+            raise PrognosticsError(f"{self.path}: not a history database ({' '.join(str(e).split())[:200]})") from None
         if ver > SCHEMA_VERSION:
             self.conn.close()
             raise PrognosticsError(f"{self.path}: history schema version {ver} is newer than this software's "
@@ -339,6 +347,16 @@ class HistoryStore:
             except BaseException:
                 self.conn.execute("ROLLBACK")
                 raise
+        else:   # a damaged schema can parse and pass the integrity check yet miss a column (fuzzing found it)
+            want = {"tests": ("id",) + TEST_COLUMNS, "schema_version": ("version", "applied_utc"),
+                    "maintenance": ("id", "actuator_id", "time_h", "fault", "action", "wall_time_utc", "note")}
+            for table, cols in want.items():
+                have = {r[1] for r in self.conn.execute(f"PRAGMA table_info({table})")}
+                lost = [c for c in cols if c not in have]
+                if lost:
+                    self.conn.close()
+                    raise PrognosticsError(f"{self.path}: not a history database (table {table} lacks "
+                                           f"{', '.join(lost)})")
 
     def close(self) -> None:
         self.conn.close()
@@ -402,16 +420,15 @@ class HistoryStore:
         The source hash is the sha256 of ``source_path`` (CSV or bag) if given, else of the
         ``response`` channels, else of the diagnosis result itself.
         """
-        f = diagnosis.faults
-        k = (f.k_gm, f.k_fsj, f.k_bkl)
-        std = tuple(diagnosis.std[n] for n in ("k_gm", "k_fsj", "k_bkl"))
+        k = diagnosis.faults.as_tuple()
+        std = tuple(diagnosis.std[f"k_{n}"] for n in FAULT_KEYS)
         if source_path is not None:
             if not Path(source_path).is_file():
                 raise PrognosticsError(f"{source_path}: no such recording")
             h = sha256_file(source_path)
         elif response is not None:
             hh = hashlib.sha256()
-            for c in ("t", "command", "position", "velocity", "pressure", "current"):
+            for c in ("t", "command", *MEASURED):
                 hh.update(np.ascontiguousarray(getattr(response, c), float).tobytes())
             h = hh.hexdigest()
         else:
@@ -491,7 +508,7 @@ class HistoryStore:
 
     def history(self) -> History:
         """All tests and maintenance as arrays for the prognostics."""
-        q = "SELECT actuator_id, time_h, k_gm, k_fsj, k_bkl, std_gm, std_fsj, std_bkl, usage FROM tests"
+        q = f"SELECT actuator_id, time_h, {','.join(K_COLUMNS + STD_COLUMNS)}, usage FROM tests"
         recs = [HealthRecord(a, t, (g, f, b), (sg, sf, sb), usage=u) for a, t, g, f, b, sg, sf, sb, u in
                 self.conn.execute(q)]
         reps = list(self.conn.execute("SELECT actuator_id, time_h, fault, action FROM maintenance"))

@@ -25,9 +25,11 @@ import numpy as np
 
 from eha_health import FDISequence, Faults, simulate
 
+from ..physics.faults import FAULT_KEYS
 from .config import Settings, load_settings
 
-FAULTS = ("gm", "fsj", "bkl")
+#: Short fault names (gm, fsj, bkl): :data:`eha_health.physics.faults.FAULT_KEYS`.
+FAULTS = FAULT_KEYS
 
 
 def _step_rise_time(r, seq: FDISequence) -> float:

@@ -14,15 +14,17 @@ import importlib
 import sys
 
 import rclpy
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from msg_bridge.contract import Topic
 
 
-def qos(topic: Topic):
-    """RELIABLE, KEEP_LAST(depth), TRANSIENT_LOCAL when latched."""
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=topic.depth, reliability=ReliabilityPolicy.RELIABLE,
+def qos(topic: Topic, best_effort: bool = False):
+    """RELIABLE (BEST_EFFORT for a lossy link), KEEP_LAST(depth), TRANSIENT_LOCAL when latched."""
+    rel = ReliabilityPolicy.BEST_EFFORT if best_effort else ReliabilityPolicy.RELIABLE
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=topic.depth, reliability=rel,
                       durability=DurabilityPolicy.TRANSIENT_LOCAL if topic.latched else DurabilityPolicy.VOLATILE)
 
 
@@ -50,10 +52,14 @@ def run_node(factory, args=None) -> int:
 
     Exit codes: 0 done or interrupted, 1 a node's own error, 2 a parameter it refused at start.
     """
-    rclpy.init(args=args)
+    try:
+        rclpy.init(args=args)
+    except RCLError as e:       # unparsable --ros-args: one line, not a traceback
+        print(f"error: {str(e).split(', at ')[0]}", file=sys.stderr)
+        return 2
     try:
         node = factory()
-    except ValueError as e:     # bad parameter: one line, not a traceback
+    except (ValueError, OSError) as e:     # bad parameter or unreadable file: one line, not a traceback
         print(f"error: {e}", file=sys.stderr)
         teardown(None, [])
         return 2

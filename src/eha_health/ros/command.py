@@ -15,7 +15,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.node import Node
 from std_srvs.srv import Trigger
@@ -26,26 +25,31 @@ from msg_bridge.convert import NS
 
 from ..physics.sequence import FDISequence
 from . import msg_class, qos, run_node
+from .params import INT_MAX, Param, declare
+
+
+#: The command node's parameters (docs/interfaces.md): defaults, units, ranges.
+PARAMS = (
+    Param("rate", 1.0, "playback speed: 1 real time, 0 as fast as possible", 0.0, 1000.0),
+    Param("sample_rate_hz", 1000.0, "command sample rate [Hz]", 10.0, 100_000.0),
+    Param("period_s", 0.0, "start a test every N s of simulated time (0: off) [s]", 0.0, 1e6),
+    Param("autostart", False, "start one test as soon as the graph is up"),
+    Param("max_tests", 0, "stop after this many tests (0: no limit)", 0, INT_MAX),
+    Param("wait_for_graph_s", 10.0, "autostart/period: wait up to this long for plant and monitor subscribers [s]",
+          0.0, 3600.0),
+    Param("graph_grace_s", 2.0, "after plant and monitor are discovered, wait this long before autostart [s]",
+          0.0, 600.0),
+    Param("settle_s", 0.5, "between two tests [s of simulated time]: the actuator is brought back to the "
+          "test's first command over the first half (raised cosine) and rests there", 0.0, 60.0),
+    Param("max_in_flight", 200, "rate 0: samples ahead of the plant", 1, C.SAMPLE_DEPTH),
+    Param("actuator_id", "eha", "joint name in the command messages"),
+)
 
 
 class CommandNode(Node):
     def __init__(self, name: str = "eha_command", sequence: FDISequence | None = None, **kw):
         super().__init__(name, **kw)
-        d = ParameterDescriptor
-        self.declare_parameter("rate", 1.0, d(description="playback speed: 1 real time, 0 as fast as possible"))
-        self.declare_parameter("sample_rate_hz", 1000.0, d(description="command sample rate [Hz]"))
-        self.declare_parameter("period_s", 0.0, d(description="start a test every N s of simulated time (0: off)"))
-        self.declare_parameter("autostart", False, d(description="start one test as soon as the graph is up"))
-        self.declare_parameter("max_tests", 0, d(description="stop after this many tests (0: no limit)"))
-        self.declare_parameter("wait_for_graph_s", 10.0, d(
-            description="autostart/period: wait up to this long for plant and monitor subscribers [s]"))
-        self.declare_parameter("graph_grace_s", 2.0, d(
-            description="after plant and monitor are discovered, wait this long before autostart [s]"))
-        self.declare_parameter("settle_s", 0.5, d(
-            description="between two tests [s of simulated time]: the actuator is brought back to the "
-                        "test's first command over the first half (raised cosine) and rests there"))
-        self.declare_parameter("max_in_flight", 200, d(description="rate 0: samples ahead of the plant"))
-        self.declare_parameter("actuator_id", "eha", d(description="joint name in the command messages"))
+        declare(self, PARAMS)
         self.sequence = sequence or FDISequence()
         self.pub_cmd = self.create_publisher(msg_class(C.COMMAND), C.COMMAND.name, qos(C.COMMAND))
         self.pub_win = self.create_publisher(msg_class(C.TEST_WINDOW), C.TEST_WINDOW.name, qos(C.TEST_WINDOW))
@@ -147,9 +151,12 @@ class CommandNode(Node):
         else:
             acked = int(np.searchsorted(stamps, self._echo_ns, "right"))
             due = min(n, acked + int(self.get_parameter("max_in_flight").value))
-            if due == T["k"]:   # nothing acknowledged: is anyone answering?
+            if due <= T["k"]:   # nothing new acknowledged: is anyone answering?
+                due = T["k"]    # never back: what is sent is sent
                 self._stall_since = self._stall_since or time.monotonic()
                 if time.monotonic() - self._stall_since > 5.0:
+                    # (measured: this used to step back to the last acknowledged sample and wait
+                    # 5 s again, so a test whose plant was killed took ~90 s to finish)
                     self.get_logger().warning("no plant answers for 5 s: playing on without flow control",
                                               throttle_duration_sec=5.0)
                     due = min(n, T["k"] + int(self.get_parameter("max_in_flight").value))

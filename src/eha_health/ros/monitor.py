@@ -8,9 +8,16 @@ duplicates, dropped samples, length. A good window is diagnosed in a worker thre
 (:func:`eha_health.identification.diagnose`) so the executor keeps serving messages; a bad
 one is reported at once as ERROR with the reason. Either way the node keeps running.
 
+With a ``history`` file, each diagnosis is appended to that SQLite health history at the test's
+operating time (``operating_hours``, else the window's ROS / simulated start stamp in hours)
+and the actuator's remaining useful life follows (:mod:`eha_health.monitoring.prognosis`, in
+the same worker thread): its key values join the status, P(failure before the next check)
+raises it to WARN / ERROR at ``warn_p_fail`` / ``error_p_fail``, and ``eha/rul`` carries it.
+
 Outputs (each also written to the log as published): ``/diagnostics`` (one status per actuator, re-published every
 ``diagnostics_period_s``; levels from ``warn_level`` / ``error_level`` on the
-largest coefficient), ``eha/health`` (latched 2x3 array), and an MCAP log of every
+largest coefficient, and from the prognosis), ``eha/health`` (latched 2x3 array), ``eha/rul``
+(latched JSON prognosis, with a history), and an MCAP log of every
 input topic (raw wire bytes, ros2 profile) and every output, flushed after every window so
 a crash loses at most the samples of the window in progress.
 """
@@ -22,7 +29,6 @@ from collections import Counter, deque
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from rcl_interfaces.msg import ParameterDescriptor
 from rcl_interfaces.srv import GetParameters
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
@@ -34,43 +40,64 @@ from msg_bridge import convert as cv
 
 from ..identification.diagnose import DEFAULT_METHOD, METHODS
 from ..identification.fitness import FITNESSES
+from ..io.bagrun import HISTORY_META
 from ..io.mcaplog import BagWriter
+from ..io.window import IncompleteWindow
 from ..monitoring.analysis import analyse_window
-from ..monitoring.health import HealthPolicy, Verdict
+from ..monitoring.health import HealthPolicy, Verdict, escalate
+from ..monitoring.prognosis import PrognosisStep, rul_values
 from ..monitoring.windows import WindowTracker
-from ..physics.faults import FAULT_NAMES
+from ..physics.faults import FAULT_NAMES, FAULT_UPPER
 from . import msg_class, qos, run_node
+from .params import INT_MAX, Param, declare
 
 #: How long a window waits for late samples once none arrives [s].
 WINDOW_TIMEOUT_S = 2.0
+
+#: Verdicts that keep their window's samples and fitted response in ``results`` (older ones drop them).
+KEEP_RESPONSES = 10
+
+#: The monitor's parameters (docs/interfaces.md): defaults, units, ranges.
+PARAMS = (
+    Param("actuator_id", "eha", "hardware_id of the diagnostic status"),
+    Param("method", DEFAULT_METHOD, "identification method", choices=tuple(METHODS)),
+    Param("fitness", "lsq", "fitness function", choices=tuple(FITNESSES)),
+    Param("seed", 0, "seed of the identification (GA)", 0, INT_MAX),
+    Param("warn_level", 0.3, "WARN when a coefficient reaches this [-]", 0.0, FAULT_UPPER),
+    Param("error_level", 0.7, "ERROR when a coefficient reaches this [-]", 0.0, FAULT_UPPER),
+    Param("log_path", "auto", "MCAP log file; 'auto' = eha_monitor_<date>.mcap in log_dir; '' = no log"),
+    Param("log_dir", ".", "directory of the 'auto' log"),
+    Param("plant_node", "", "simulated runs: node whose k_* parameters are the truth (into MCAP metadata)"),
+    Param("window_timeout_s", WINDOW_TIMEOUT_S,
+          "after the end mark, wait for late samples until none has come for this long [s]", 0.05, 600.0),
+    Param("diagnostics_period_s", 1.0, "re-publish the status this often [s]", 0.01, 3600.0),
+    Param("exit_after", 0, "stop after this many windows (0: run on)", 0, INT_MAX),
+    Param("discrepancy", False, "after each diagnosis run the discrepancy loop; a structured residual -> WARN "
+          "'model lacks: ...' (or, when no candidate explains it, WARN that the coefficients may be biased)"),
+    Param("discrepancy_max_effects", 1, "most effects the loop may add", 0, 8),
+    Param("max_fill_samples", 0, "fill lost samples of a measured channel by linear interpolation when no gap is "
+          "longer than this many samples (and at most 10 % are lost); 0: refuse any gap", 0, 100),
+    Param("best_effort", False, "subscribe to the inputs BEST_EFFORT (a lossy link; matches both kinds of "
+          "publisher) instead of RELIABLE"),
+    Param("history", "", "SQLite health history: each diagnosis is appended and the RUL published ('' = none)"),
+    Param("operating_hours", -1.0, "operating hours of the next test in the history [h]; < 0: the window's start "
+          "stamp (ROS / simulated time) in hours", -1.0, 1e7),
+    Param("usage", -1.0, "usage at the next test (flight hours or cycles; < 0: none)", -1.0, 1e9),
+    Param("next_check_h", -1.0, "hours to the next check, for p_fail_next [h] (< 0: prognosis.next_check_h of "
+          "prognostics.yaml)", -1.0, 1e6),
+    Param("warn_p_fail", -1.0, "WARN when P(failure before the next check) reaches this (< 0: prognosis.warn_p_fail)",
+          -1.0, 1.0),
+    Param("error_p_fail", -1.0, "ERROR when P(failure before the next check) reaches this (< 0: "
+          "prognosis.error_p_fail)", -1.0, 1.0),
+    Param("request_tests", 0, "ask the command node (eha/start_test) for this many tests, one after each verdict, "
+          "each once every input topic has a matched publisher (0: never ask)", 0, INT_MAX),
+)
 
 
 class MonitorNode(Node):
     def __init__(self, name: str = "eha_monitor", **kw):
         super().__init__(name, **kw)
-        d = ParameterDescriptor
-        self.declare_parameter("actuator_id", "eha", d(description="hardware_id of the diagnostic status"))
-        self.declare_parameter("method", DEFAULT_METHOD, d(description="identification method: " + ", ".join(METHODS)))
-        self.declare_parameter("fitness", "lsq", d(description="fitness function: " + ", ".join(FITNESSES)))
-        self.declare_parameter("seed", 0, d(description="seed of the identification (GA)"))
-        self.declare_parameter("warn_level", 0.3, d(description="WARN when a coefficient reaches this"))
-        self.declare_parameter("error_level", 0.7, d(description="ERROR when a coefficient reaches this"))
-        self.declare_parameter("log_path", "auto", d(
-            description="MCAP log file; 'auto' = eha_monitor_<date>.mcap in log_dir; '' = no log"))
-        self.declare_parameter("log_dir", ".", d(description="directory of the 'auto' log"))
-        self.declare_parameter("plant_node", "", d(
-            description="simulated runs: node whose k_* parameters are the truth (into MCAP metadata)"))
-        self.declare_parameter("window_timeout_s", WINDOW_TIMEOUT_S, d(
-            description="after the end mark, wait for late samples until none has come for this long [s]"))
-        self.declare_parameter("diagnostics_period_s", 1.0, d(description="re-publish the status this often [s]"))
-        self.declare_parameter("exit_after", 0, d(description="stop after this many windows (0: run on)"))
-        self.declare_parameter("discrepancy", False, d(
-            description="after each diagnosis run the discrepancy loop; a structured residual -> WARN 'model lacks: "
-                        "...' (or, when no candidate explains it, WARN that the coefficients may be biased)"))
-        self.declare_parameter("discrepancy_max_effects", 1, d(description="most effects the loop may add"))
-        self.declare_parameter("request_tests", 0, d(
-            description="ask the command node (eha/start_test) for this many tests, one after each verdict, "
-                        "each once every input topic has a matched publisher (0: never ask)"))
+        declare(self, PARAMS)
 
         self.log = self._open_log()
         self.windows = WindowTracker()
@@ -83,11 +110,14 @@ class MonitorNode(Node):
 
         self.pub_diag = self.create_publisher(msg_class(C.DIAGNOSTICS), C.DIAGNOSTICS.name, qos(C.DIAGNOSTICS))
         self.pub_health = self.create_publisher(msg_class(C.HEALTH), C.HEALTH.name, qos(C.HEALTH))
+        self.prognosis = self._prognosis_step()
+        self.pub_rul = self.create_publisher(msg_class(C.RUL), C.RUL.name, qos(C.RUL)) if self.prognosis else None
         handlers = {C.COMMAND.name: self._on_command, C.JOINT_STATE.name: self._on_joint_state,
                     C.PRESSURE.name: self._on_pressure, C.CURRENT.name: self._on_current,
                     C.TEST_WINDOW.name: self._on_window}
-        self._subs = [self.create_subscription(msg_class(topic), topic.name,
-                                               self._recorder(topic, handlers.get(topic.name)), qos(topic), raw=True)
+        lossy = bool(self.get_parameter("best_effort").value)
+        self._subs = [self.create_subscription(msg_class(topic), topic.name, self._recorder(
+            topic, handlers.get(topic.name)), qos(topic, best_effort=lossy), raw=True)
                       for topic in C.INPUTS]
         self.tests_requested = 0
         self._request = None                  # the start_test call in flight
@@ -101,6 +131,19 @@ class MonitorNode(Node):
                 GetParameters, f"{self.get_parameter('plant_node').value.rstrip('/')}/get_parameters")
         self.create_timer(0.05, self._poll)
         self.create_timer(float(self.get_parameter("diagnostics_period_s").value), self._publish_status)
+
+    def _prognosis_step(self) -> PrognosisStep | None:
+        path = self.get_parameter("history").value
+        if not path:
+            return None
+
+        def opt(name):
+            v = float(self.get_parameter(name).value)
+            return None if v < 0 else v
+        step = PrognosisStep(path, self.get_parameter("actuator_id").value, opt("next_check_h"), opt("warn_p_fail"),
+                             opt("error_p_fail"))   # PrognosticsError (ValueError) names a bad parameter
+        self.get_logger().info(f"health history {path}: diagnoses appended, RUL on {C.RUL.name}")
+        return step
 
     # ---------------------------------------------------------------- log
     def _open_log(self):
@@ -130,7 +173,13 @@ class MonitorNode(Node):
             if handler is None:
                 return
             try:
-                handler(deserialize_message(data, cls))
+                msg = deserialize_message(data, cls)
+            except Exception as e:   # not CDR of this type (rclpy raises RMWError): logged as received, ignored
+                msg, why = None, f"undecodable: {str(e).split(', at ')[0]}"
+            try:
+                if msg is None:
+                    raise ValueError(why)
+                handler(msg)
             except (ValueError, AttributeError, TypeError) as e:   # one bad message never stops the node
                 self.bad_messages += 1
                 self.get_logger().warning(f"{topic.name}: message ignored ({e})", throttle_duration_sec=1.0)
@@ -187,8 +236,8 @@ class MonitorNode(Node):
         while self._futures and self._futures[0][1].done():
             w, fut = self._futures.popleft()
             try:
-                d, rep = fut.result()
-                self._report(w, d, None, rep)
+                d, rep, prog = fut.result()
+                self._report(w, d, None, rep, prog)
             except Exception as e:   # identification refused the data (ValueError) or failed
                 self._report(w, None, f"{type(e).__name__}: {e}" if not isinstance(e, ValueError) else str(e))
 
@@ -225,28 +274,47 @@ class MonitorNode(Node):
         if self.log is not None:
             self.log.flush()
         try:
-            r = self.windows.assemble(w)
+            r = self.windows.assemble(w, int(self.get_parameter("max_fill_samples").value))
+        except IncompleteWindow as e:   # a source stopped mid-test: say so, do not diagnose a part
+            return self._report(w, None, str(e), incomplete=True)
         except ValueError as e:     # WindowError: the window names what is wrong with it
             return self._report(w, None, str(e))
         args = dict(method=self.get_parameter("method").value, fitness=self.get_parameter("fitness").value,
                     seed=int(self.get_parameter("seed").value))
         self.get_logger().info(f"test {w.id}: {len(r)} samples, diagnosing ({args['method']}) ...")
-        self._futures.append((w, self._worker.submit(
-            analyse_window, r, bool(self.get_parameter("discrepancy").value),
-            int(self.get_parameter("discrepancy_max_effects").value), **args)))
+        disc, max_eff = bool(self.get_parameter("discrepancy").value), int(self.get_parameter("discrepancy_max_effects").value)
+        step, start_s = self.prognosis, w.start / 1e9
+        hours = float(self.get_parameter("operating_hours").value)
+        time_h = hours if hours >= 0 else start_s / 3600.0
+        usage = float(self.get_parameter("usage").value)
+
+        def work():
+            d, rep = analyse_window(r, disc, max_eff, **args)
+            out = None
+            if step is not None:   # in the worker too: the executor keeps serving messages
+                out = step.after_diagnosis(d, time_h, sim_time_s=start_s, response=r, usage=usage if usage >= 0 else None,
+                                           discrepancy=rep.verdict if rep is not None else None)
+            return d, rep, out
+        self._futures.append((w, self._worker.submit(work)))
 
     def _policy(self) -> HealthPolicy:
         return HealthPolicy(float(self.get_parameter("warn_level").value), float(self.get_parameter("error_level").value))
 
-    def _report(self, w, d, error: str | None, rep=None) -> None:
+    def _report(self, w, d, error: str | None, rep=None, prog=None, incomplete: bool = False) -> None:
         entry = {"test_id": w.id, "start_ns": w.start, "truth": w.truth, "response": w.response, "diagnosis": d}
-        if d is None:
+        if d is None and incomplete:
+            v = self._policy().incomplete(w.id, error)
+            self.get_logger().warning(v.message)
+        elif d is None:
             v = self._policy().refused(w.id, error)
             self.get_logger().error(v.message)
         else:
-            v = self._policy().verdict(w.id, w.start, d, rep)
+            v = self._policy().verdict(w.id, w.start, d, rep, (w.response.meta or {}).get("filled"))
             if rep is not None:
                 entry["discrepancy"] = rep
+            if prog is not None:
+                v = self._with_prognosis(w, v, prog)
+                entry["prognosis"] = prog
             k = d.faults.as_tuple()
             self._publish(self.pub_health, C.HEALTH, cv.health_msg(k, [d.std[n] for n in FAULT_NAMES]))
             self.get_logger().info(f"test {w.id}: " + ", ".join(f"{n.upper()}={x:.3f}" for n, x in zip(FAULT_NAMES, k))
@@ -259,11 +327,34 @@ class MonitorNode(Node):
                         k_: json.dumps(x, default=float) for k_, x in rep.as_dict().items()})
         entry.update(level=v.level, message=v.message)
         self.results.append(entry)
+        # a long run keeps every verdict but only the last windows' samples and fitted responses
+        # (~0.4 MB a test: 300 tests would hold 120 MB)
+        for old in self.results[-KEEP_RESPONSES - 1:-KEEP_RESPONSES]:
+            old["response"] = None
+            if old["diagnosis"] is not None:
+                old["diagnosis"].fitted = None
         self._status = v
         self._publish_status()
         if self.log is not None:
             self.log.flush()
         self.windows.forget(w.id)
+
+    def _with_prognosis(self, w, v: Verdict, prog) -> Verdict:
+        """The verdict with the RUL key values and level; publish the RUL and log where the test went."""
+        level, why = self.prognosis.level(prog)
+        if prog.error:
+            self.get_logger().warning(f"test {w.id}: {prog.error}")
+            why = "; ".join(filter(None, [why, prog.error]))
+            level = "WARN" if level == "OK" else level
+        aid = self.get_parameter("actuator_id").value
+        if prog.prognosis is not None:
+            self._publish(self.pub_rul, C.RUL, cv.rul_msg({"actuator_id": aid, "time_h": prog.time_h, **prog.prognosis}))
+        if self.log is not None and prog.appended:
+            usage = float(self.get_parameter("usage").value)
+            self.log.add_metadata(HISTORY_META.format(w.id), {
+                "actuator_id": aid, "time_h": repr(prog.time_h), "sim_time_s": repr(w.start / 1e9),
+                "history": str(self.get_parameter("history").value), **({"usage": repr(usage)} if usage >= 0 else {})})
+        return escalate(v, level, why, rul_values(prog))
 
     def _publish_status(self) -> None:
         v = self._status

@@ -15,7 +15,7 @@ a change rebuilds the model at rest before the next command):
 from __future__ import annotations
 
 import numpy as np
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
 from msg_bridge import contract as C
@@ -26,21 +26,24 @@ from ..physics.layout import O_CUR, O_P12, O_POS, O_VEL
 from ..physics.model import Plant
 from ..physics.params import load
 from . import msg_class, qos, run_node
+from .params import INT_MAX, Param, declare
+
+
+#: The plant node's parameters (docs/interfaces.md): defaults, units, ranges.
+PARAMS = (
+    *(Param(k, 0.0, f"fault coefficient {k.upper()} (0 healthy, 1 limit) [-]", 0.0, FAULT_UPPER) for k in FAULT_NAMES),
+    Param("effects", [""], "optional effects to switch on"),
+    Param("seed", 0, "seed of the sensor/command noise", 0, INT_MAX),
+    Param("params_file", "", "YAML parameter overrides ('' = shipped)"),
+    Param("actuator_id", "eha", "joint/hardware name"),
+    Param("max_gap_s", 2.0, "longest idle time simulated between two command samples [s]", 0.0, 3600.0),
+)
 
 
 class PlantNode(Node):
     def __init__(self, name: str = "eha_plant", **kw):
         super().__init__(name, **kw)
-        rng = FloatingPointRange(from_value=0.0, to_value=FAULT_UPPER, step=0.0)
-        for k in FAULT_NAMES:
-            self.declare_parameter(k, 0.0, ParameterDescriptor(
-                description=f"fault coefficient {k.upper()} (0 healthy, 1 limit)", floating_point_range=[rng]))
-        self.declare_parameter("effects", [""], ParameterDescriptor(description="optional effects to switch on"))
-        self.declare_parameter("seed", 0, ParameterDescriptor(description="seed of the sensor/command noise"))
-        self.declare_parameter("params_file", "", ParameterDescriptor(description="YAML parameter overrides"))
-        self.declare_parameter("actuator_id", "eha", ParameterDescriptor(description="joint/hardware name"))
-        self.declare_parameter("max_gap_s", 2.0, ParameterDescriptor(
-            description="longest idle time simulated between two command samples [s]"))
+        declare(self, PARAMS)
         self.plant = self._build({})
         # compile the kernels now, before any endpoint exists, so the first answer is not late
         self.plant.step(np.zeros(1))

@@ -25,6 +25,7 @@ from ..identification.diagnose import DEFAULT_METHOD
 from ..io.bagrun import complete_windows, resolve_topics, truth_values
 from ..io.mcaplog import BagError, read_bag
 from ..monitoring.health import results_summary
+from .params import Param, declare
 from . import msg_class, qos, run_node, teardown
 from .monitor import MonitorNode
 
@@ -42,6 +43,16 @@ def recorded_inputs(path: str | Path) -> list[tuple[int, str, bytes]]:
     return rows
 
 
+#: The replay node's parameters (besides ``bag``): defaults, units, ranges.
+PARAMS = (
+    Param("rate", 1.0, "playback speed: 1 real time, 0 as fast as the reader takes them", 0.0, 1000.0),
+    Param("max_msgs_per_s", 5000.0, "pace when publishing to another process [messages/s]", 1.0, 1e6),
+    Param("max_burst_s", 0.05, "largest catch-up burst, in seconds of max_msgs_per_s [s]", 0.001, 10.0),
+    Param("max_in_flight", 1000, "own monitor: messages ahead of what it has taken", 1, C.SAMPLE_DEPTH),
+    Param("wait_for_subscribers_s", 10.0, "wait up to this long for the subscribers [s]", 0.0, 3600.0),
+)
+
+
 class ReplayNode(Node):
     """Publishes a bag's input topics in log-time order.
 
@@ -55,12 +66,7 @@ class ReplayNode(Node):
     def __init__(self, path: str | Path | None = None, name: str = "eha_replay",
                  delivered: Callable[[], int] | None = None, **kw):
         super().__init__(name, **kw)
-        self.declare_parameter("bag", str(path or ""))
-        self.declare_parameter("rate", 1.0)
-        self.declare_parameter("max_msgs_per_s", 5000.0)
-        self.declare_parameter("max_burst_s", 0.05)
-        self.declare_parameter("max_in_flight", 1000)
-        self.declare_parameter("wait_for_subscribers_s", 10.0)
+        declare(self, (Param("bag", str(path or ""), "the MCAP file to replay"), *PARAMS))
         self.delivered = delivered
         bag = self.get_parameter("bag").value
         if not bag:
@@ -112,8 +118,13 @@ class ReplayNode(Node):
         self.sent = max(end, self.sent)
 
 def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_path: str | Path = "",
-           domain_id: int | None = None, method: str = DEFAULT_METHOD, timeout_s: float = 600.0) -> dict:
+           domain_id: int | None = None, method: str = DEFAULT_METHOD, timeout_s: float = 600.0,
+           wait_for_subscribers_s: float = 10.0) -> dict:
     """Republish ``bag`` into the graph; with ``with_monitor`` also diagnose it here.
+
+    Publishing starts once a subscriber takes the commands and the marks, or after
+    ``wait_for_subscribers_s`` (a monitor process that is still starting on a busy machine
+    needs longer than the default: measured, over 10 s at load 18).
 
     Returns the monitor's verdicts (with the bag's own truth metadata where it has
     some) and a printable summary.
@@ -135,7 +146,9 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
             nodes.append(mon)
         # with the monitor here, pace by what it has taken (flow control), not by a fixed rate
         delivered = (lambda: sum(mon.received.values())) if mon is not None else None
-        rep = ReplayNode(bag, context=ctx, delivered=delivered, parameter_overrides=[Parameter("rate", value=float(rate))])
+        rep = ReplayNode(bag, context=ctx, delivered=delivered, parameter_overrides=[
+            Parameter("rate", value=float(rate)),
+            Parameter("wait_for_subscribers_s", value=float(wait_for_subscribers_s))])
         nodes.insert(0, rep)
         for n in nodes:
             ex.add_node(n)

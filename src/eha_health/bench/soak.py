@@ -1,0 +1,106 @@
+"""``eha-health bench soak``: many consecutive FDI tests through the in-process node graph.
+
+Figures, not assertions: windows lost (a test without a diagnosis), resident memory growth
+after the warm-up [%], thread count, and whether diagnosis time drifts (median of the last
+tenth over the first tenth after the warm-up). Every test prints one progress line (so a run
+stopped early still says what it measured); ``--plot`` draws memory and diagnosis time per test.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..physics.faults import Faults
+from ..ros.graph import Graph
+
+
+def _proc_status() -> tuple[float, int]:
+    """(resident memory [MB], OS threads) of this process, from /proc/self/status."""
+    rss, threads = float("nan"), 0
+    with open(f"/proc/{os.getpid()}/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                rss = int(line.split()[1]) / 1024.0
+            elif line.startswith("Threads:"):
+                threads = int(line.split()[1])
+    return rss, threads
+
+
+def soak(tests: int = 300, warmup: int = 20, faults: Faults = Faults(0.4, 0.6, 0.4), seed: int = 0,
+         progress=None) -> dict:
+    """Run ``tests`` consecutive tests (the first ``warmup`` not counted in the drift figures)."""
+    if tests <= warmup:
+        raise ValueError(f"tests ({tests}) must exceed the warm-up ({warmup})")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="eha-soak-") as tmp, \
+            Graph(faults=faults, seed=seed, log_path=Path(tmp) / "soak.mcap") as g:
+        for i in range(tests):
+            t0 = time.perf_counter()
+            r = g.run_test()
+            wall = time.perf_counter() - t0
+            rss, threads = _proc_status()
+            d = r["diagnosis"]
+            rows.append({"test": i + 1, "ok": d is not None, "level": r["level"], "rss_mb": rss, "threads": threads,
+                         "diagnosis_s": d.wall_time_s if d else float("nan"), "wall_s": wall,
+                         "k": list(d.faults.as_tuple()) if d else None})
+            if progress:
+                progress(f"soak test {i + 1}/{tests}: {r['level']}, RSS {rss:.1f} MB, {threads} threads, "
+                         f"diagnosis {rows[-1]['diagnosis_s']:.2f} s, test {wall:.2f} s")
+        log_mb = (Path(tmp) / "soak.mcap").stat().st_size / 1e6
+        results = len(g.monitor.results)
+    return summarise(rows, warmup, results, log_mb)
+
+
+def summarise(rows: list[dict], warmup: int, results: int, log_mb: float) -> dict:
+    after = rows[warmup:]
+    rss = np.array([r["rss_mb"] for r in after])
+    thr = np.array([r["threads"] for r in after])
+    diag = np.array([r["diagnosis_s"] for r in after])
+    tenth = max(1, len(after) // 10)
+    first, last = np.nanmedian(diag[:tenth]), np.nanmedian(diag[-tenth:])
+    return {"tests": len(rows), "warmup": warmup, "verdicts": results,
+            "windows_lost": sum(not r["ok"] for r in rows),
+            "rss_after_warmup_mb": float(rss[0]), "rss_end_mb": float(rss[-1]), "rss_max_mb": float(rss.max()),
+            "rss_growth_pct": float(100 * (rss[-1] - rss[0]) / rss[0]),
+            "threads_min": int(thr.min()), "threads_max": int(thr.max()),
+            "diagnosis_first_tenth_s": float(first), "diagnosis_last_tenth_s": float(last),
+            "diagnosis_drift_ratio": float(last / first), "log_mb": log_mb, "rows": rows}
+
+
+def format_soak(res: dict) -> str:
+    return "\n".join([
+        f"soak: {res['tests']} consecutive tests through the in-process graph (warm-up {res['warmup']})",
+        f"  windows lost:      {res['windows_lost']} ({res['verdicts']} verdicts)",
+        f"  resident memory:   {res['rss_after_warmup_mb']:.1f} MB after warm-up -> {res['rss_end_mb']:.1f} MB "
+        f"at the end ({res['rss_growth_pct']:+.2f} %; max {res['rss_max_mb']:.1f} MB)",
+        f"  threads:           {res['threads_min']} .. {res['threads_max']}",
+        f"  diagnosis time:    median {res['diagnosis_first_tenth_s']:.2f} s (first tenth) -> "
+        f"{res['diagnosis_last_tenth_s']:.2f} s (last tenth), ratio {res['diagnosis_drift_ratio']:.2f}",
+        f"  MCAP log:          {res['log_mb']:.1f} MB"])
+
+
+def plot_soak(res: dict, path: str | Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    rows = res["rows"]
+    n = [r["test"] for r in rows]
+    fig, ax = plt.subplots(3, 1, figsize=(8, 7), sharex=True)
+    ax[0].plot(n, [r["rss_mb"] for r in rows])
+    ax[0].set_ylabel("RSS [MB]")
+    ax[1].plot(n, [r["threads"] for r in rows])
+    ax[1].set_ylabel("threads")
+    ax[2].plot(n, [r["diagnosis_s"] for r in rows], ".")
+    ax[2].set_ylabel("diagnosis [s]")
+    ax[2].set_xlabel("test")
+    for a in ax:
+        a.axvline(res["warmup"] + 0.5, color="grey", lw=0.8, ls="--")
+    ax[0].set_title(f"soak: {res['tests']} tests, RSS {res['rss_growth_pct']:+.2f} % after warm-up, "
+                    f"{res['windows_lost']} windows lost")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,235 @@
+"""Commands on the health history and the remaining useful life: ``history add|list|import|repair``,
+``prognose``, ``thresholds`` (the harness is ``bench rul`` in :mod:`.bench`).
+
+Every history command takes ``--history DB``; without it the file is
+:func:`eha_health.prognostics.store.default_history_path` (``$EHA_HEALTH_HISTORY``, else
+``history.default_path`` of data/prognostics.yaml). Bad input: one line, exit code 2, and the
+store unchanged (each append is one SQLite transaction, validated before it is written).
+"""
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+from ..physics.faults import FAULT_KEYS
+from .common import (UsageError, fitness_option, history_option, json_flag, load_run, method_option, progress,
+                     quiet_flag, seed_option, test_option)
+
+def _db(args, must_exist: bool) -> Path:
+    from ..prognostics.store import default_history_path
+    path = Path(args.history).expanduser() if args.history else default_history_path()
+    if must_exist and not path.is_file():
+        raise UsageError(f"{path}: no such history (add tests first: eha-health history add | import)")
+    if path.suffix.lower() == ".csv":
+        raise UsageError(f"{path}: --history of this command is a SQLite history, not a HISTORY.csv "
+                         "(import it with: eha-health history import FILE.csv)")
+    return path
+
+
+def _finite(v: float | None, name: str, minimum: float = 0.0) -> None:
+    if v is not None and not (math.isfinite(v) and v >= minimum):
+        raise UsageError(f"{name} must be a finite number >= {minimum:g}, got {v}")
+
+
+def cmd_history_add(args) -> int:
+    from ..identification.diagnose import diagnose
+    from ..prognostics.store import HistoryStore, sha256_file
+    path = Path(args.run)
+    if not path.is_file():
+        raise UsageError(f"{path}: no such recording")
+    _finite(args.time_h, "--time-h")
+    _finite(args.usage, "--usage")
+    db = _db(args, must_exist=False)
+    r, _, notes = load_run(path, args.test)
+    for n in notes:
+        print(f"note: {n}", file=sys.stderr)
+    time_h, usage, sim_s = args.time_h, args.usage, None
+    if path.suffix.lower() == ".mcap":
+        from ..io.bagrun import history_times
+        meta = history_times(path, r.meta.get("test_id"))
+        time_h = meta.get("time_h") if time_h is None else time_h
+        usage = meta.get("usage") if usage is None else usage
+        sim_s = meta.get("sim_time_s")
+    if time_h is None:
+        raise UsageError(f"{path}: no --time-h and the recording carries no operating time "
+                         f"(MCAP metadata history/test_<id>)")
+    digest = sha256_file(path)
+    with HistoryStore(db) as st:
+        known = [t for t in st.list_tests() if t["source_hash"] == digest]
+        if known:   # before the diagnosis: the same recording twice adds nothing
+            t = known[0]
+            if t["actuator_id"] != args.actuator:
+                raise UsageError(f"{path} is already in the history for actuator {t['actuator_id']}, "
+                                 f"not {args.actuator}")
+            print(f"{path} is already in {db} (actuator {t['actuator_id']}, time_h {t['time_h']:g}): nothing added")
+            return 0
+        d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=progress(args))
+        added = st.add_diagnosis(d, args.actuator, time_h, usage=usage, usage_unit=args.usage_unit,
+                                 source_path=path, sim_time_s=sim_s)
+    ks = ", ".join(f"{n.upper()}={v:.4f}+-{d.std['k_' + n]:.4f}" for n, v in zip(FAULT_KEYS, d.faults.as_tuple()))
+    if args.json:
+        print(json.dumps({"added": added, "actuator_id": args.actuator, "time_h": time_h, "usage": usage,
+                          "diagnosis": d.as_dict(), "history": str(db)}, default=float))
+    else:
+        print(f"{'added' if added else 'already present'}: {args.actuator} at {time_h:g} h: {ks} ({d.method}) "
+              f"-> {db}")
+    return 0
+
+
+def cmd_history_list(args) -> int:
+    from ..prognostics.store import HistoryStore
+    db = _db(args, must_exist=True)
+    with HistoryStore(db) as st:
+        rows = st.list_tests(args.actuator)
+        maint = st.list_maintenance(args.actuator)
+    if args.json:
+        print(json.dumps({"history": str(db), "tests": rows, "maintenance": maint}, default=float))
+        return 0
+    print(f"{db}: {len(rows)} test(s), {len(maint)} maintenance action(s)")
+    print(f"{'actuator':12s} {'time_h':>9s} " + " ".join(f"{'K_' + n.upper():>15s}" for n in FAULT_KEYS)
+          + f" {'usage':>8s}  method         source")
+    for t in rows:
+        ks = " ".join(f"{t['k_' + n]:7.4f}+-{t['std_' + n]:.4f}" for n in FAULT_KEYS)
+        use = "" if t["usage"] is None else f"{t['usage']:g}"
+        print(f"{t['actuator_id']:12s} {t['time_h']:9.2f} {ks} {use:>8s}  {t['method'] or '':14s} "
+              f"{Path(t['source_path']).name if t['source_path'] else ''}")
+    for m in maint:
+        print(f"{m['actuator_id']:12s} {m['time_h']:9.2f} {m['action']} {m['fault']}" +
+              (f" ({m['note']})" if m["note"] else ""))
+    return 0
+
+
+def cmd_history_import(args) -> int:
+    from ..prognostics.store import HistoryStore
+    db = _db(args, must_exist=False)
+    with HistoryStore(db) as st:
+        n = st.import_csv(args.file)
+        total = len(st.list_tests())
+    print(f"imported {n} new test(s) from {args.file} into {db} ({total} in all)")
+    return 0
+
+
+def cmd_history_repair(args) -> int:
+    from ..prognostics.store import HistoryStore
+    _finite(args.time_h, "--time-h")
+    db = _db(args, must_exist=True)
+    with HistoryStore(db) as st:
+        st.record_repair(args.actuator, args.fault, args.time_h, action=args.action, note=args.note)
+    print(f"recorded: {args.action} of {args.fault} on {args.actuator} at {args.time_h:g} h "
+          f"(its trend restarts there) -> {db}")
+    return 0
+
+
+def _fmt_h(v) -> str:
+    return "-" if v is None else f"{v:.0f}"
+
+
+def format_prognosis(obj: dict, next_check_h: float) -> str:
+    """The ``prognose`` object as a table: one line per fault and the overall, per actuator."""
+    lines = []
+    for a, r in obj["actuators"].items():
+        lines.append(f"{a}:")
+        lines.append(f"  {'fault':8s} {'model':18s} {'RUL median [5 %, 95 %] h':>28s} "
+                     f"{'P(fail < ' + format(next_check_h, 'g') + ' h)':>16s} {'threshold':>9s} {'tests':>5s}")
+        for name, f in [*r["faults"].items(), ("overall", r["overall"])]:
+            rul = (f"{_fmt_h(f['rul_median_h'])} [{_fmt_h(f['rul_p05_h'])}, {_fmt_h(f['rul_p95_h'])}]"
+                   if f["p_fail_next"] is not None else "-")
+            pf = "-" if f["p_fail_next"] is None else f"{f['p_fail_next']:.3f}"
+            thr = "-" if f["threshold"] is None else f"{f['threshold']:.3f}"
+            model = (f["model"] or "-") + (" +fleet" if f.get("fleet_prior") else "")
+            lines.append(f"  {name:8s} {model:18s} {rul:>28s} {pf:>16s} {thr:>9s} {f['n_tests']:5d}")
+            if name == "overall" and f.get("dominant_fault"):
+                lines.append(f"  {'':8s} dominant fault: {f['dominant_fault']}")
+            if f.get("reason"):
+                lines.append(f"  {'':8s} {f['reason']}")
+    return "\n".join(lines)
+
+
+def cmd_prognose(args) -> int:
+    from ..prognostics.rul import plot_prognosis, prognose
+    from ..prognostics.store import default_history_path
+    src = Path(args.history).expanduser() if args.history else default_history_path()
+    if not src.is_file():
+        raise UsageError(f"{src}: no such history")
+    _finite(args.next_check_h, "--next-check-h", minimum=1e-12)
+    if args.plot:
+        obj = plot_prognosis(src, args.plot, args.actuator, args.next_check_h)
+        if args.actuator is None:   # the plot shows one actuator; the answer is about all of them
+            obj = prognose(src, None, args.next_check_h)
+    else:
+        obj = prognose(src, args.actuator, args.next_check_h)
+    if args.json:
+        print(json.dumps(obj, default=float))
+        return 0
+    from ..prognostics.config import load_settings
+    nc = args.next_check_h if args.next_check_h is not None else load_settings().prognosis.next_check_h
+    print(format_prognosis(obj, nc))
+    if args.plot:
+        print(f"  plot: {args.plot}")
+    return 0
+
+
+def cmd_thresholds(args) -> int:
+    from ..prognostics.thresholds import failure_thresholds
+    th = failure_thresholds()
+    if args.json:
+        print(json.dumps({f: t.as_dict() for f, t in th.items()}))
+        return 0
+    print("failure thresholds of the reference EHA (data/prognostics.yaml requirements, noise-free FDI sequence):")
+    for f, t in th.items():
+        if t.requirement is None:
+            print(f"  K_{f.upper():4s} {t.k:.4f}  (default: no requirement breaks below the search bound)")
+        else:
+            print(f"  K_{f.upper():4s} {t.k:.4f}  breaks {t.requirement}: {t.metric} > {t.limit:g} {t.unit} "
+                  f"(healthy {t.healthy_value:.4g} {t.unit})")
+    return 0
+
+
+def register(sub) -> None:
+    h = sub.add_parser("history", help="the health history: add | list | import | repair")
+    hs = h.add_subparsers(dest="history_command", required=True)
+    a = hs.add_parser("add", help="diagnose a recorded test (CSV or MCAP) and append it to the history",
+                      parents=[history_option(), test_option("MCAP: test window id"), method_option(),
+                               fitness_option(), seed_option(0, "seed of the identification (GA)"),
+                               json_flag("print one JSON object"), quiet_flag()])
+    a.add_argument("run", help="RUN.csv (simulate format) or BAG.mcap (docs/interfaces.md contract)")
+    a.add_argument("--actuator", required=True, help="actuator id")
+    a.add_argument("--time-h", type=float, help="operating hours at the test (an MCAP log of the monitor "
+                                                "carries it; required otherwise)")
+    a.add_argument("--usage", type=float, help="usage at the test (flight hours or cycles)")
+    a.add_argument("--usage-unit", default=None, help="unit of --usage, e.g. FH or cycles")
+    a.set_defaults(func=cmd_history_add)
+
+    ls = hs.add_parser("list", help="the stored tests and maintenance", parents=[history_option(), json_flag()])
+    ls.add_argument("--actuator", help="one actuator only")
+    ls.set_defaults(func=cmd_history_list)
+
+    im = hs.add_parser("import", help="append the rows of a HISTORY.csv (actuator_id, time_h, k_gm, k_fsj, "
+                                      "k_bkl [, std_gm, std_fsj, std_bkl, usage])", parents=[history_option()])
+    im.add_argument("file", help="HISTORY.csv")
+    im.set_defaults(func=cmd_history_import)
+
+    rp = hs.add_parser("repair", help="record a repair or replacement: that fault's trend restarts",
+                       parents=[history_option()])
+    rp.add_argument("--actuator", required=True)
+    rp.add_argument("--fault", required=True, choices=(*FAULT_KEYS, "all"))
+    rp.add_argument("--time-h", type=float, required=True, help="operating hours of the repair")
+    rp.add_argument("--action", choices=("repair", "replace"), default="repair")
+    rp.add_argument("--note", help="free text")
+    rp.set_defaults(func=cmd_history_repair)
+
+    p = sub.add_parser("prognose", help="remaining useful life per fault and overall, with its interval",
+                       parents=[history_option(), json_flag("one object: {actuators: {ID: {faults, overall}}}")])
+    p.add_argument("--actuator", help="one actuator (default: all)")
+    p.add_argument("--next-check-h", type=float, help="hours to the next check (p_fail_next; default "
+                                                      "prognosis.next_check_h of data/prognostics.yaml)")
+    p.add_argument("--plot", help="PNG per fault: history, trend and band, threshold, RUL distribution "
+                                  "(of --actuator, default the first)")
+    p.set_defaults(func=cmd_prognose)
+    p.epilog = "--history also takes a HISTORY.csv"
+
+    t = sub.add_parser("thresholds", help="failure thresholds from the physics (requirements of data/prognostics.yaml)",
+                       parents=[json_flag()])
+    t.set_defaults(func=cmd_thresholds)

@@ -1,0 +1,278 @@
+"""The fleet batch (client side): recordings -> Dask tasks -> the health history store.
+
+One task per recording (:func:`.worker.diagnose_recording`) on a Dask distributed cluster: a
+``LocalCluster`` of worker processes on the loopback interface by default, or an existing
+scheduler (``scheduler="tcp://host:8786"``). Only this client writes the store.
+
+Idempotent and resumable. Each recording is identified by the sha256 of its bytes (the
+store's UNIQUE ``source_hash``); recordings whose hash the store already holds are skipped
+before any task is submitted. Each result is written in its own ``BEGIN IMMEDIATE``
+transaction as soon as it can be, so a client killed at any moment leaves only whole rows,
+and the next run diagnoses exactly the recordings not stored yet.
+
+Time order. The store accepts an actuator's tests only in increasing time (it refuses a test
+earlier than the latest stored one), while Dask returns results in any order. Tasks are
+submitted earliest-test-first across actuators and a result waits in memory until every
+earlier test of its actuator in this batch is written or has failed (a killed client loses
+only such waiting results, which the next run redoes).
+
+Failures. A recording that cannot be read, identified, diagnosed or stored is appended to
+the failures file (CSV next to the store, ``<store>.failures.csv``: ``wall_time_utc, path,
+source_hash, actuator_id, time_h, reason``) and never stops the batch; it is retried by the
+next run (a log of attempts: nothing in it is ever rewritten).
+"""
+from __future__ import annotations
+
+import contextlib
+import csv
+import datetime as _dt
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from ..identification.diagnose import DEFAULT_METHOD, METHODS
+from ..physics.params import load
+from ..prognostics.config import PrognosticsError
+from ..prognostics.store import HealthRecord, HistoryStore, sha256_file
+from .recordings import FleetError, Recording, complete_identity
+from .worker import FleetWorkerSetup, diagnose_recording, worker_info
+
+#: Dask settings of the LocalCluster (its worker processes inherit them). A task is seconds of one
+#: CPU-bound thread: the worker's statistical profiler (a stack sample every 10 ms) would only take
+#: CPU from it, and sub-second memory and system polling buy nothing at that time scale. Tasks wait
+#: in the scheduler's queue until a worker is free (worker-saturation), so work stealing (a scheduler
+#: pass every 100 ms) has nothing to balance.
+CLUSTER_CONFIG = {"distributed.worker.profile.enabled": False,
+                  "distributed.scheduler.work-stealing": False,
+                  "distributed.worker.memory.monitor-interval": "1s",
+                  "distributed.admin.system-monitor.interval": "2s"}
+FAILURE_COLUMNS = ("wall_time_utc", "path", "source_hash", "actuator_id", "time_h", "reason")
+
+
+def failures_path(history: str | Path) -> Path:
+    """The failures file of a history store: ``<store>.failures.csv``."""
+    p = Path(history)
+    return p.with_name(p.name + ".failures.csv")
+
+
+class FailureLog:
+    """Append-only CSV of failed recordings (flushed per line: a killed client keeps what it logged)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.count = 0
+        self.items: list[dict] = []
+
+    def add(self, rec: Recording, reason: str, source_hash: str | None = None) -> None:
+        row = {"wall_time_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+               "path": str(rec.path), "source_hash": source_hash or "", "actuator_id": rec.actuator_id or "",
+               "time_h": "" if rec.time_h is None else f"{rec.time_h:g}", "reason": " ".join(str(reason).split())}
+        new = not self.path.is_file() or self.path.stat().st_size == 0
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with self.path.open("a", newline="") as f:
+            w = csv.DictWriter(f, FAILURE_COLUMNS)
+            if new:
+                w.writeheader()
+            w.writerow(row)
+        self.count += 1
+        self.items.append({"path": row["path"], "reason": row["reason"]})
+
+
+@contextlib.contextmanager
+def dask_client(scheduler: str | None = None, workers: int = 2, setup: bool = True):
+    """A connected ``distributed.Client``: to ``scheduler`` if given, else to a new ``LocalCluster``
+    of ``workers`` single-threaded worker processes on 127.0.0.1 (no dashboard); with ``setup``
+    the :class:`FleetWorkerSetup` plugin is registered (once per worker, later workers included)."""
+    import dask
+    from distributed import Client, LocalCluster
+    if scheduler is None and (not isinstance(workers, int) or workers < 1):
+        raise FleetError(f"--workers must be a positive integer, got {workers!r}")
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(dask.config.set(CLUSTER_CONFIG))
+        if scheduler is None:
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                dashboard_address=None, env={"NUMBA_NUM_THREADS": "1"}, silence_logs=logging.ERROR))
+            client = stack.enter_context(Client(cluster))
+        else:
+            try:
+                client = stack.enter_context(Client(scheduler, timeout="30s"))
+            except (OSError, TimeoutError) as e:
+                raise FleetError(f"cannot reach the Dask scheduler at {scheduler}: {e}") from None
+        if setup:
+            client.register_plugin(FleetWorkerSetup())
+        yield client
+
+
+@dataclass
+class _Pending:
+    """Per actuator: the batch's tests in time order, and the results waiting for earlier ones."""
+    order: list[str] = field(default_factory=list)      # source hashes, earliest first
+    ready: dict[str, dict | None] = field(default_factory=dict)   # hash -> result (None: failed)
+
+
+def _fmt_rate(n: int, seconds: float) -> str:
+    return f"{3600.0 * n / seconds:,.0f}/h" if seconds > 0 and n else "-"
+
+
+def plan(recordings: list[Recording], store: HistoryStore, failures: FailureLog) -> tuple[list, int]:
+    """(to do: [(recording, hash)], skipped): hash every file, drop those the store has (and
+    repeats), fill ids and times from bag metadata; unreadable or unidentified files fail here."""
+    known = {r[0] for r in store.conn.execute("SELECT source_hash FROM tests")}
+    todo, seen, skipped = [], set(), 0
+    for rec in recordings:
+        try:
+            h = sha256_file(rec.path)
+        except OSError as e:
+            failures.add(rec, f"cannot read: {e.strerror or e}")
+            continue
+        if h in known or h in seen:
+            skipped += 1
+            continue
+        seen.add(h)
+        try:
+            complete_identity(rec)
+        except ValueError as e:
+            failures.add(rec, str(e), h)
+            continue
+        todo.append((rec, h))
+    # earliest tests of every actuator first, so results mostly arrive in the order they are written
+    rank: dict[str, int] = {}
+    keyed = []
+    for rec, h in sorted(todo, key=lambda x: (x[0].actuator_id, x[0].time_h)):
+        rank[rec.actuator_id] = rank.get(rec.actuator_id, -1) + 1
+        keyed.append((rank[rec.actuator_id], rec.actuator_id, rec, h))
+    return [(rec, h) for _, _, rec, h in sorted(keyed, key=lambda x: (x[0], x[1]))], skipped
+
+
+def record_of(rec: Recording, h: str, res: dict) -> HealthRecord:
+    """The store row of one successful task result."""
+    return HealthRecord(rec.actuator_id, float(rec.time_h), tuple(res["k"]), tuple(res["std"]), usage=rec.usage,
+                        usage_unit=rec.usage_unit, method=res["method"], cost=res["cost"], fit_rms=res["rms"],
+                        discrepancy=res.get("discrepancy"), warnings=res["warnings"], source_path=str(rec.path),
+                        source_hash=h)
+
+
+def diagnose_fleet(recordings: list[Recording], history: str | Path, scheduler: str | None = None,
+                   workers: int = 2, method: str = DEFAULT_METHOD, seed: int = 0, discrepancy: bool = False,
+                   progress: Callable[[str], None] | None = None, client=None) -> dict:
+    """Diagnose every recording not yet in the store at ``history`` and append the results.
+
+    Returns the summary: ``recordings, diagnosed, skipped, failed, failures`` (first 20:
+    path, reason), ``wall_time_s`` (all of it, cluster start included), ``batch_time_s``
+    (first submit to last write), ``per_hour`` (diagnosed / batch time), mean ``read_s``,
+    ``diagnosis_s`` and ``task_s`` on the workers, ``workers``, ``scheduler``, ``method``,
+    ``history``, ``failures_file``, ``worker_setup`` (per worker: pid, warm-up time, numba threads,
+    setups run, tasks run), ``task_numba_threads`` (numba's thread count seen inside the tasks).
+    """
+    if method not in METHODS:
+        raise FleetError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
+    t_start = time.perf_counter()
+    failures = FailureLog(failures_path(history))
+    try:
+        store = HistoryStore(history)
+    except PrognosticsError as e:
+        raise FleetError(str(e)) from None
+    with store:
+        todo, skipped = plan(recordings, store, failures)
+        summary = {"recordings": len(recordings), "diagnosed": 0, "skipped": skipped, "failed": failures.count,
+                   "method": method, "history": str(history), "failures_file": str(failures.path),
+                   "scheduler": scheduler or "LocalCluster", "workers": None, "worker_setup": [],
+                   "batch_time_s": 0.0}
+        if progress:
+            progress(f"{len(recordings)} recordings: {len(todo)} to diagnose, {skipped} already in the history, "
+                     f"{failures.count} failed before diagnosis")
+        if todo:
+            with contextlib.ExitStack() as stack:
+                if client is None:
+                    client = stack.enter_context(dask_client(scheduler, workers))
+                summary.update(_run(client, todo, store, failures, method, seed, discrepancy, progress, summary))
+        summary["failed"] = failures.count
+        summary["failures"] = failures.items[:20]
+        summary["wall_time_s"] = time.perf_counter() - t_start
+        summary["per_hour"] = (3600.0 * summary["diagnosed"] / summary["batch_time_s"]
+                               if summary["batch_time_s"] > 0 else None)
+    return summary
+
+
+def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, seed: int, discrepancy: bool,
+         progress, summary: dict) -> dict:
+    from distributed import as_completed
+    # the calibrated monitor goes to every worker once; tasks carry only a reference to it
+    params = client.scatter(load("monitor"), broadcast=True)
+    t0 = time.perf_counter()
+    by_hash = {h: rec for rec, h in todo}
+    pending: dict[str, _Pending] = {}
+    for rec, h in sorted(todo, key=lambda x: (x[0].actuator_id, x[0].time_h)):
+        pending.setdefault(rec.actuator_id, _Pending()).order.append(h)
+    futures = [client.submit(diagnose_recording, str(rec.path), params, method, seed, discrepancy,
+                             key=f"eha-diagnose-{h}", pure=False) for rec, h in todo]
+    done = ok = 0
+    last_line = 0.0
+    threads: set[int] = set()
+    times = {"read_s": 0.0, "diagnosis_s": 0.0, "task_s": 0.0, "diagnosis_cpu_s": 0.0, "task_cpu_s": 0.0}
+
+    def flush(actuator: str) -> None:
+        nonlocal done
+        p = pending[actuator]
+        while p.order and p.order[0] in p.ready:
+            h = p.order.pop(0)
+            res = p.ready.pop(h)
+            if res is None:
+                continue
+            rec = by_hash[h]
+            try:
+                added = store.add_tests([record_of(rec, h, res)], [rec.where()])
+            except (PrognosticsError, ValueError) as e:
+                failures.add(rec, f"not stored: {e}", h)
+                continue
+            done += added
+
+    for n, fut in enumerate(as_completed(futures), start=1):
+        h = fut.key.removeprefix("eha-diagnose-")
+        rec = by_hash[h]
+        try:
+            res = fut.result()
+        except Exception as e:   # the task itself died (worker killed, ...): this file fails, the batch goes on
+            res = {"error": f"task failed: {type(e).__name__}: {e}"}
+        fut.release()
+        if "error" in res:
+            failures.add(rec, res["error"], h)
+            pending[rec.actuator_id].ready[h] = None
+        else:
+            ok += 1
+            threads.add(res["numba_threads"])
+            for k in times:
+                times[k] += res.get(k, 0.0)
+            pending[rec.actuator_id].ready[h] = res
+        flush(rec.actuator_id)
+        el = time.perf_counter() - t0
+        if progress and (el - last_line >= 2.0 or n == len(todo)):
+            last_line = el
+            progress(f"{n}/{len(todo)} done: {done} stored, {failures.count} failed, {_fmt_rate(n, el)}, "
+                     f"{el:.0f} s")
+    ok = max(ok, 1)
+    info = client.run(worker_info)
+    return {"diagnosed": done, "batch_time_s": time.perf_counter() - t0,
+            "workers": len(client.scheduler_info().get("workers", {})),
+            "worker_setup": list(info.values()), "task_numba_threads": sorted(threads),
+            **{f"mean_{k}": v / ok for k, v in times.items()}}
+
+
+def format_summary(s: dict) -> str:
+    """The end-of-batch lines: done, skipped, failed, throughput."""
+    lines = [f"fleet diagnose: {s['diagnosed']} diagnosed and stored, {s['skipped']} skipped (already in the "
+             f"history), {s['failed']} failed, of {s['recordings']} recordings"]
+    if s.get("per_hour"):
+        lines.append(f"  throughput {s['per_hour']:,.0f} diagnoses/h ({s['method']}) on {s['workers']} worker(s) "
+                     f"of {s['scheduler']}; batch {s['batch_time_s']:.1f} s, total {s['wall_time_s']:.1f} s")
+        lines.append(f"  per task on the workers: read {s['mean_read_s']:.2f} s, diagnosis {s['mean_diagnosis_s']:.2f} s, "
+                     f"task {s['mean_task_s']:.2f} s")
+    for f in s.get("failures", [])[:5]:
+        lines.append(f"  failed: {f['path']}: {f['reason']}")
+    if s["failed"]:
+        lines.append(f"  failures logged in {s['failures_file']}")
+    lines.append(f"  history: {s['history']}")
+    return "\n".join(lines)

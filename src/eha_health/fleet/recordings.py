@@ -1,0 +1,202 @@
+"""Which recordings a fleet batch diagnoses, and whose they are.
+
+A recording is an MCAP bag to the topic contract (docs/interfaces.md) or a CSV in the
+``simulate`` format. Its actuator id and test time [h] come from the bag's metadata record
+``eha_health`` (``actuator_id``, the record the live monitor writes) and ``history/test_<id>``
+(``time_h``, ``usage``: the history CLI's record), or from a manifest CSV (:data:`MANIFEST_COLUMNS`).
+
+Manifest paths are relative to the manifest's folder and must stay inside it (no ``..`` or
+absolute path escaping it): a manifest names files of one fleet folder, nothing else.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..io.bagrun import HISTORY_META, read_run
+from ..io.mcaplog import bag_metadata
+from ..physics.faults import FAULT_NAMES
+from ..signals.response import Response
+
+#: Columns of a fleet manifest (``truth_*`` and ``noise_seed`` only for simulated fleets).
+MANIFEST_COLUMNS = ("actuator_id", "time_h", "usage", "usage_unit", "path",
+                    "truth_k_gm", "truth_k_fsj", "truth_k_bkl", "noise_seed")
+#: Columns a manifest must have.
+MANIFEST_REQUIRED = ("actuator_id", "time_h", "path")
+MANIFEST_NAME = "manifest.csv"
+#: Bag metadata record with the actuator id (the live monitor writes it; so does ``fleet simulate``).
+META_RECORD = "eha_health"
+#: HISTORY_META (io.bagrun): the record with the operating time [h] and usage of test window <id>,
+#: the history CLI's and the monitor's.
+SUFFIXES = (".mcap", ".csv")
+
+
+class FleetError(ValueError):
+    """Bad input to a fleet batch (one line naming the problem; the CLI exits 2)."""
+
+
+@dataclass
+class Recording:
+    """One recorded test to diagnose: its file and whose test it is (None: not known yet)."""
+    path: Path
+    actuator_id: str | None = None
+    time_h: float | None = None
+    usage: float | None = None
+    usage_unit: str | None = None
+    truth: dict | None = None
+    origin: str = ""          # where the id and time come from (manifest line, bag metadata)
+
+    def where(self) -> str:
+        return f"{self.path}" + (f" ({self.origin})" if self.origin else "")
+
+
+def _number(text, where: str, name: str, optional: bool = False) -> float | None:
+    if optional and (text is None or str(text).strip() == ""):
+        return None
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        raise FleetError(f"{where}: {name} {text!r} is not a number") from None
+    if not math.isfinite(v) or v < 0:
+        raise FleetError(f"{where}: {name} must be a finite number >= 0, got {text!r}")
+    return v
+
+
+def read_manifest(path: str | Path) -> list[Recording]:
+    """The recordings a manifest lists, paths resolved relative to it and checked to stay inside its folder."""
+    path = Path(path)
+    if not path.is_file():
+        raise FleetError(f"{path}: no such manifest")
+    root = path.parent.resolve()
+    with path.open(newline="") as f:
+        reader = csv.DictReader(f)
+        cols = [c.strip() for c in reader.fieldnames or []]
+        missing = [c for c in MANIFEST_REQUIRED if c not in cols]
+        if missing:
+            raise FleetError(f"{path}: missing column(s) {', '.join(missing)} (a manifest needs "
+                             f"{', '.join(MANIFEST_REQUIRED)})")
+        reader.fieldnames = cols
+        out = []
+        for line, row in enumerate(reader, start=2):
+            where = f"{path.name} line {line}"
+            if None in row:
+                raise FleetError(f"{where}: more values than columns")
+            row = {k: (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
+            if not row["actuator_id"]:
+                raise FleetError(f"{where}: empty actuator_id")
+            if not row["path"]:
+                raise FleetError(f"{where}: empty path")
+            rel = Path(row["path"])
+            full = (root / rel).resolve()
+            if rel.is_absolute() or not full.is_relative_to(root):
+                raise FleetError(f"{where}: path {row['path']!r} leaves the manifest's folder {root}")
+            truth = None
+            if all(row.get(f"truth_k_{n[2:]}") not in (None, "") for n in FAULT_NAMES):
+                truth = {n: _number(row[f"truth_k_{n[2:]}"], where, f"truth_k_{n[2:]}") for n in FAULT_NAMES}
+            out.append(Recording(full, row["actuator_id"], _number(row["time_h"], where, "time_h"),
+                                 _number(row.get("usage"), where, "usage", optional=True),
+                                 row.get("usage_unit") or None, truth, where))
+    if not out:
+        raise FleetError(f"{path}: the manifest lists no recordings")
+    return out
+
+
+def write_manifest(path: str | Path, rows: list[dict]) -> Path:
+    """Write ``rows`` (dicts with :data:`MANIFEST_COLUMNS`, ``path`` relative to the manifest)."""
+    path = Path(path)
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, MANIFEST_COLUMNS, extrasaction="raise")
+        w.writeheader()
+        w.writerows(rows)
+    return path
+
+
+def bag_identity(path: Path) -> dict:
+    """``{actuator_id, time_h, usage, usage_unit}`` of a bag, where its metadata has them: the actuator
+    from :data:`META_RECORD`, the time and usage from its one :data:`HISTORY_META` record (else from
+    :data:`META_RECORD`)."""
+    md = bag_metadata(path)
+    rec = dict(md.get(META_RECORD, {}))
+    tests = [name for name in md if name.startswith(HISTORY_META.format(""))]
+    if len(tests) == 1:
+        rec.update({k: v for k, v in md[tests[0]].items() if k in ("time_h", "usage", "usage_unit")})
+    out: dict = {}
+    if rec.get("actuator_id"):
+        out["actuator_id"] = rec["actuator_id"]
+    for key in ("time_h", "usage"):
+        if rec.get(key) not in (None, ""):
+            out[key] = _number(rec[key], f"{path}: metadata", key)
+    if rec.get("usage_unit"):
+        out["usage_unit"] = rec["usage_unit"]
+    return out
+
+
+def find_recordings(paths: list[str | Path]) -> list[Recording]:
+    """Recordings under ``paths`` (files, or folders searched recursively for .mcap and .csv).
+
+    A ``manifest.csv`` is not a recording: it gives the actuator id and test time of the files
+    it lists (CSVs need it; bags carry their own metadata). A file's manifest is the nearest
+    one listing it, from the file's folder up to the folder given (a file given alone: its own
+    folder). Without either, the recording is still returned (it fails in the batch, saying why).
+    """
+    found: list[tuple[Path, Path]] = []   # (file, the top folder its manifest may be in)
+    for p in map(Path, paths):
+        if p.is_dir():
+            top = p.resolve()
+            found += [(q.resolve(), top) for q in sorted(p.rglob("*")) if q.is_file() and q.suffix.lower() in SUFFIXES]
+        elif p.is_file():
+            found.append((p.resolve(), p.resolve().parent))
+        else:
+            raise FleetError(f"{p}: no such file or folder")
+    manifests: dict[Path, dict[Path, Recording]] = {}
+
+    def listed(folder: Path) -> dict[Path, Recording]:
+        if folder not in manifests:
+            m = folder / MANIFEST_NAME
+            manifests[folder] = {r.path: r for r in read_manifest(m)} if m.is_file() else {}
+        return manifests[folder]
+
+    seen, out = set(), []
+    for full, top in found:
+        if full.name == MANIFEST_NAME or full in seen:
+            continue
+        seen.add(full)
+        rec = None
+        for folder in [full.parent, *full.parent.parents]:
+            rec = listed(folder).get(full)
+            if rec is not None or folder == top or not folder.is_relative_to(top):
+                break
+        out.append(rec or Recording(full))
+    if not out:
+        raise FleetError(f"no .mcap or .csv recordings in {', '.join(map(str, paths))}")
+    return out
+
+
+def complete_identity(rec: Recording) -> None:
+    """Fill a bag's actuator id and test time from its metadata where the manifest gave none;
+    raises FleetError (a per-recording failure) when they stay unknown."""
+    if rec.actuator_id is None and rec.path.suffix.lower() == ".mcap":
+        ident = bag_identity(rec.path)
+        if "actuator_id" in ident and "time_h" in ident:
+            rec.actuator_id, rec.time_h = ident["actuator_id"], ident["time_h"]
+            rec.usage, rec.usage_unit = ident.get("usage"), ident.get("usage_unit")
+            rec.origin = "bag metadata"
+    if rec.actuator_id is None or rec.time_h is None:
+        where = (f"no metadata '{META_RECORD}' with actuator_id and '{HISTORY_META.format('<id>')}' with time_h"
+                 if rec.path.suffix.lower() == ".mcap"
+                 else "a CSV recording has no metadata")
+        raise FleetError(f"unknown actuator id / test time: {where}, and no manifest lists the file")
+
+
+def read_recording(path: str | Path) -> tuple[Response, dict | None]:
+    """(response, truth or None) of one recording; ValueError names what is wrong with the file."""
+    path = Path(path)
+    if path.suffix.lower() == ".mcap":
+        run = read_run(path)
+        truth = {k: float(run.truth[k]) for k in FAULT_NAMES} if run.truth else None
+        return run.response, truth
+    if path.suffix.lower() == ".csv":
+        return Response.from_csv(path), None
+    raise FleetError(f"{path}: not a recording (.mcap or .csv)")

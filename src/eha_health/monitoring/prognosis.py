@@ -1,0 +1,143 @@
+"""The monitor's prognosis step, without ROS: append a diagnosis to the health history, then the
+actuator's remaining useful life.
+
+After each diagnosed test window the monitor calls :meth:`PrognosisStep.after_diagnosis`: the
+diagnosis is appended to the SQLite history (:class:`~eha_health.prognostics.store.HistoryStore`,
+one transaction; the same recording twice adds no row) with its operating time ``time_h``, the
+ROS / simulated stamp of the window [s] and the wall clock; then
+:func:`~eha_health.prognostics.rul.prognose` for this actuator. The fleet prior (every other
+actuator of the history fitted) is cached until the rest of the fleet gains a test. A bad
+append (times out of order, K out of range, an unreadable file) never raises: the outcome says
+what went wrong and the RUL is that of the stored history.
+
+:func:`rul_values` turns the outcome into the ``/diagnostics`` key values (docs/interfaces.md):
+``rul_median_h``, ``rul_p05_h``, ``rul_p95_h``, ``p_fail_next`` overall and with a ``_gm`` /
+``_fsj`` / ``_bkl`` suffix per fault, ``dominant_fault``; :meth:`PrognosisStep.level` the level
+that P(failure before the next check) calls for.
+"""
+from __future__ import annotations
+
+import math
+import sqlite3
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..physics.faults import FAULT_KEYS
+from ..prognostics.config import PrognosticsError, Settings, load_settings
+
+#: The F fields of ``prognose --json`` the status carries, and the key they become.
+RUL_FIELDS = ("rul_median_h", "rul_p05_h", "rul_p95_h", "p_fail_next")
+
+
+@dataclass
+class Outcome:
+    """What one prognosis step did: whether the test was appended, and the actuator's prognosis."""
+    appended: bool
+    prognosis: dict | None = None     # {"faults": {gm: F, ...}, "overall": F} of prognose --json
+    error: str | None = None          # why the append or the prognosis failed (one line)
+    time_h: float | None = None
+
+
+@dataclass
+class PrognosisStep:
+    """Append + prognose for one actuator of a history file (one SQLite connection per call, so any
+    thread may call it)."""
+    history: str | Path
+    actuator_id: str
+    next_check_h: float | None = None   # h (default prognosis.next_check_h of data/prognostics.yaml)
+    warn_p_fail: float | None = None    # P(fail before the next check) for WARN (default prognosis.warn_p_fail)
+    error_p_fail: float | None = None   # ... for ERROR (default prognosis.error_p_fail)
+    settings: Settings = field(default_factory=load_settings)
+
+    def __post_init__(self):
+        p = self.settings.prognosis
+        self.next_check_h = p.next_check_h if self.next_check_h is None else float(self.next_check_h)
+        self.warn_p_fail = p.warn_p_fail if self.warn_p_fail is None else float(self.warn_p_fail)
+        self.error_p_fail = p.error_p_fail if self.error_p_fail is None else float(self.error_p_fail)
+        if not (math.isfinite(self.next_check_h) and self.next_check_h > 0):
+            raise PrognosticsError(f"next_check_h must be a positive number of hours, got {self.next_check_h}")
+        if not 0 < self.warn_p_fail <= self.error_p_fail <= 1:
+            raise PrognosticsError(f"need 0 < warn_p_fail ({self.warn_p_fail}) <= error_p_fail "
+                                   f"({self.error_p_fail}) <= 1")
+        self._priors = None
+        self._priors_key = None
+        self._lock = threading.Lock()
+
+    def _fleet_priors(self, store, hist):
+        """Priors from the whole history, recomputed only when another actuator gains or loses a test."""
+        from ..prognostics.rul import fleet_priors
+        key = store.conn.execute("SELECT COUNT(*), COALESCE(SUM(time_h), 0) FROM tests WHERE actuator_id != ?",
+                                 (self.actuator_id,)).fetchone()
+        key = (*key, store.conn.execute("SELECT COUNT(*) FROM maintenance").fetchone()[0])
+        if key != self._priors_key:
+            self._priors = fleet_priors(hist, self.settings)
+            self._priors_key = key
+        return self._priors
+
+    def after_diagnosis(self, diagnosis, time_h: float, sim_time_s: float | None = None, response=None,
+                        discrepancy: str | None = None, usage: float | None = None) -> Outcome:
+        """Append ``diagnosis`` at operating time ``time_h`` [h] (window stamp ``sim_time_s`` [s]), then prognose."""
+        from ..prognostics.rul import prognose
+        from ..prognostics.store import HistoryStore
+        with self._lock:
+            out = Outcome(False, time_h=time_h)
+            try:
+                with HistoryStore(self.history, self.settings) as st:
+                    try:
+                        out.appended = st.add_diagnosis(diagnosis, self.actuator_id, time_h, usage=usage,
+                                                        response=response, sim_time_s=sim_time_s,
+                                                        discrepancy=discrepancy)
+                    except PrognosticsError as e:   # e.g. times out of order: the stored history stays
+                        out.error = f"not appended to the history: {e}"
+                    hist = st.history()
+                    if self.actuator_id in hist.actuators:
+                        obj = prognose(hist, self.actuator_id, self.next_check_h, self.settings,
+                                       priors=self._fleet_priors(st, hist))
+                        out.prognosis = obj["actuators"][self.actuator_id]
+            except (PrognosticsError, sqlite3.Error, OSError) as e:   # an unreadable, locked or full history file
+                out.error = str(e) if isinstance(e, PrognosticsError) else f"history {self.history}: {e}"
+            return out
+
+    def level(self, outcome: Outcome) -> tuple[str, str | None]:
+        """OK / WARN / ERROR from P(failure before the next check) overall, and why."""
+        ov = (outcome.prognosis or {}).get("overall") or {}
+        p = ov.get("p_fail_next")
+        if p is None:
+            return "OK", None
+        why = (f"P(failure before the next check in {self.next_check_h:g} h) = {p:.3f}"
+               f" (dominant {ov.get('dominant_fault')}, RUL median {_h(ov.get('rul_median_h'))})")
+        if p >= self.error_p_fail:
+            return "ERROR", f"{why} >= {self.error_p_fail:g}"
+        if p >= self.warn_p_fail:
+            return "WARN", f"{why} >= {self.warn_p_fail:g}"
+        return "OK", None
+
+
+def _h(v) -> str:
+    return "beyond the horizon" if v is None else f"{v:.0f} h"
+
+
+def rul_values(outcome: Outcome | None) -> dict:
+    """The ``/diagnostics`` key values of a prognosis outcome ('none' where there is no RUL)."""
+    if outcome is None:
+        return {}
+    out: dict = {"history_appended": outcome.appended}
+    if outcome.time_h is not None:
+        out["operating_time_h"] = float(outcome.time_h)
+    if outcome.error:
+        out["history_error"] = outcome.error
+    prog = outcome.prognosis
+    if prog is None:
+        return out
+    ov = prog["overall"]
+    for k in RUL_FIELDS:
+        out[k] = "none" if ov.get(k) is None else float(ov[k])
+    out["dominant_fault"] = ov.get("dominant_fault") or "none"
+    if ov.get("reason"):
+        out["rul_reason"] = ov["reason"]
+    for f in FAULT_KEYS:
+        F = prog["faults"][f]
+        for k in RUL_FIELDS:
+            out[f"{k}_{f}"] = "none" if F.get(k) is None else float(F[k])
+    return out

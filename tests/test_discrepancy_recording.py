@@ -1,0 +1,118 @@
+"""Measurement-chain effects: recordings altered after the test are found, told from in-loop
+effects, and the faults re-identified with them (issue 15)."""
+import numpy as np
+import pytest
+
+from eha_health import simulate
+from eha_health.bench.discrepancy import lagged, late, offset, scaled
+from eha_health.discrepancy.candidates import BY_NAME, RECORDING, RECORDING_CHAIN
+from eha_health.discrepancy.loop import analyse_fdi_test
+from eha_health.identification.diagnose import diagnose
+from eha_health.identification.knobs import FAULT_KNOBS
+from eha_health.identification.problem import KnobModel
+from eha_health.identification.record import Record
+from eha_health.identification.residual import CHANNEL_COLUMNS
+from eha_health.physics.faults import FAULT_NAMES, Faults
+from eha_health.physics.params import load
+from eha_health.signals.channels import MEASURED
+from eha_health.signals.datachecks import check_channel
+
+FAULTS = Faults(0.3, 0.5, 0.2)
+
+
+def _run(seed=11, params=None, faults=FAULTS):
+    return simulate(params=(params or load("reference")).with_effect_names(["sensor_noise"]), faults=faults, seed=seed)
+
+
+def test_library_has_every_recording_effect_of_every_channel():
+    assert {c.name for c in RECORDING} == {f"{c}_{k}" for c in MEASURED for k in ("offset", "scale", "skew", "lag")}
+    assert all(c.kind == RECORDING_CHAIN and c.knobs[0].recording for c in RECORDING)
+
+
+def test_recording_knob_changes_its_channel_only_and_shares_one_simulation():
+    r = simulate(kind="monitor", faults=FAULTS)
+    rec = Record.from_response(r)
+    m = KnobModel(load("monitor"), FAULT_KNOBS, rec).extended(BY_NAME["position_skew"].knobs)
+    X = np.array([[*FAULTS.as_tuple(), d] for d in (0.0, 1e-3, -2.5e-3, 4e-3)])
+    outs = m.run(X)
+    assert m.runs == 1                      # four rows, one simulation
+    ref = Record.from_response(r).channels["position"]
+    y_late = late(simulate(kind="monitor", faults=FAULTS), "position", 4e-3).position
+    pos = CHANNEL_COLUMNS["position"]
+    assert np.allclose(outs[0, :, pos], ref, atol=1e-12)
+    assert np.max(np.abs(outs[3, 100:, pos] - y_late[100:])) < 1e-3 * np.max(np.abs(ref))   # sub-sample skew
+    # the candidate's lag (input held over a sample) against a bilinear first-order sensor
+    m2 = KnobModel(load("monitor"), FAULT_KNOBS, rec).extended(BY_NAME["pressure_lag"].knobs)
+    p_lag = m2.run([*FAULTS.as_tuple(), 3e-3])[0][:, CHANNEL_COLUMNS["pressure"]]
+    y_lag = lagged(simulate(kind="monitor", faults=FAULTS), "pressure", 3e-3).pressure
+    assert np.max(np.abs(p_lag - y_lag)) < 0.02 * np.max(np.abs(y_lag - y_lag[0]))
+    others = [CHANNEL_COLUMNS[c] for c in ("velocity", "pressure", "current")]
+    assert np.array_equal(outs[1][:, others], outs[0][:, others])
+
+
+@pytest.fixture(scope="module")
+def cases():
+    """The issue's examples and two effects at once; each analysed once for the tests below."""
+    made = {
+        "position_skew": (late(_run(), "position", 4e-3), "position", "position_skew", 4e-3),
+        "position_scale": (scaled(_run(), "position", 0.03), "position", "position_scale", 0.03),
+        "pressure_offset": (offset(_run(), "pressure", 0.5e6), "pressure", "pressure_offset", 0.5e6),
+    }
+    out = {}
+    for name, (r, ch, cand, value) in made.items():
+        d = diagnose(r, method="deterministic")
+        out[name] = (analyse_fdi_test(r, max_effects=1, truth=FAULTS.as_dict(), diagnosis=d), ch, cand, value)
+    return out
+
+
+@pytest.mark.parametrize("name", ["position_skew", "position_scale", "pressure_offset"])
+def test_altered_recording_is_found_sized_and_the_faults_re_identified(cases, name):
+    rep, ch, cand, value = cases[name]
+    assert rep.candidates[0].name == cand and rep.selected == [cand]
+    assert rep.candidates[0].kind == RECORDING_CHAIN
+    assert rep.after.values[cand] == pytest.approx(value, rel=0.05)
+    assert max(rep.after.errors.values()) <= 0.03
+    # the affected channel's held-out excess over noise and floor falls to <= 1/3
+    assert rep.after.excess_held_out[ch] <= rep.before.excess_held_out[ch] / 3
+    assert rep.before.excess_held_out[ch] > 0
+    # cheap evidence first: most candidates are judged on their screen and say why
+    pruned = [c for c in rep.candidates if not c.refit]
+    assert len(pruned) >= len(rep.candidates) - 6 and all(c.pruned_by.startswith("screen") for c in pruned)
+    assert set(rep.pruned) == {c.name for c in pruned}
+
+
+def test_in_loop_and_recording_versions_are_told_apart(cases):
+    # a late recording is not a late feedback: the in-loop delay would move the actuator, and the
+    # other channels do not show that
+    rep = cases["position_skew"][0]
+    ev = {c.name: c for c in rep.candidates}
+    assert ev["position_skew"].delta_ic < ev["sensor_delay"].delta_ic - 50
+    rep = cases["position_scale"][0]
+    ev = {c.name: c for c in rep.candidates}
+    assert ev["position_scale"].delta_ic < ev["sensor_gain"].delta_ic - 50
+
+
+def test_two_effects_at_once_pressure_offset_with_an_in_loop_delay():
+    p = load("reference").with_effects(sensor_delay={"enabled": True, "delay": 1e-3})
+    faults = Faults(0.3, 0.4, 0.3)
+    r = offset(_run(seed=12, params=p, faults=faults), "pressure", 0.5e6)
+    rep = analyse_fdi_test(r, max_effects=2, truth=dict(zip(FAULT_NAMES, faults.as_tuple())),
+                           diagnosis=diagnose(r, method="deterministic"))
+    assert sorted(rep.selected) == ["pressure_offset", "sensor_delay"]
+    assert rep.after.values["delay"] == pytest.approx(1e-3, rel=0.1)
+    assert rep.after.values["pressure_offset"] == pytest.approx(0.5e6, rel=0.05)
+    assert max(rep.after.errors.values()) <= 0.03
+
+
+def test_data_checks_name_quantisation_clipping_and_interference():
+    r = _run()
+    t, y = r.t, r.pressure
+    q = 2e5
+    quant = np.round(y / q) * q
+    clipped = np.clip(y, None, np.percentile(y, 97))
+    hum = 2e4 * np.sin(2 * np.pi * 50.0 * t)
+    cmd = r.command
+    assert any("quantised in steps of 2e+05" in s for s in check_channel("pressure", quant, quant - y, 2e4, cmd, 1e3))
+    assert any("pinned" in s for s in check_channel("pressure", clipped, clipped - y, 2e4, cmd, 1e3))
+    assert any("interference at 50.0 Hz" in s for s in check_channel("pressure", y + hum, hum, 2e4, cmd, 1e3))
+    assert check_channel("pressure", y, 2e4 * np.random.default_rng(0).standard_normal(len(y)), 2e4, cmd, 1e3) == []

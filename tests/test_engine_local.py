@@ -1,0 +1,56 @@
+"""The engine's bounded least squares keeps a start that lies on a bound where it is."""
+import numpy as np
+import pytest
+
+from eha_health import simulate
+from eha_health.discrepancy.candidates import BY_NAME
+from eha_health.identification.knobs import FAULT_KNOBS
+from eha_health.identification.local import least_squares
+from eha_health.identification.problem import KnobModel, Problem
+from eha_health.identification.record import Record
+from eha_health.identification.residual import Residual
+from eha_health.physics.faults import Faults
+from eha_health.physics.params import load
+
+TRUE_LEAK = 5e-12       # m^3/(s Pa): the leakage knob's typical value
+
+
+@pytest.fixture(scope="module")
+def leaky():
+    f = Faults(0.2, 0.3, 0.1)
+    mon = load("monitor")
+    rec = Record.from_response(simulate(kind="monitor", faults=f,
+                                        params=mon.updated("hydraulics", leakage=mon.hydraulics.leakage + TRUE_LEAK)))
+    m = KnobModel(mon, FAULT_KNOBS + BY_NAME["leakage"].knobs, rec)
+    return m, Residual(rec), [*f.as_tuple(), 0.0]          # the leakage knob starts on its 0 bound
+
+
+def test_first_point_the_solver_evaluates_is_a_start_on_a_bound(leaky):
+    # scipy moves a start on a bound inside it by 1e-10 of its variable: in m^3/(s Pa) that is 20x
+    # the leakage's typical value (cost 317 there against 0.98 at the start)
+    m, res, x0 = leaky
+    start = res.cost(m.run(x0)[0])
+    assert res.cost(m.run([*x0[:3], 1e-10])[0]) > 100 * start
+    history = []
+    f = least_squares(Problem(m, res), x0, history=history, max_nfev=3)
+    assert history[0] == pytest.approx(start, rel=1e-12)
+    assert f.cost <= start and 0.0 <= f.x[3] <= 2 * TRUE_LEAK
+
+
+def test_fit_leaves_a_start_on_a_bound(leaky):
+    # TRF's first trust radius is the norm of the scaled start: a knob alone at ~0 never moved
+    m, res, x0 = leaky
+    start = res.cost(m.run(x0)[0])
+    f = least_squares(Problem(m, res, free=[3]), x0, max_nfev=20)
+    assert 0.0 < f.x[3] < TRUE_LEAK and f.cost < 0.8 * start
+    assert list(f.x[:3]) == x0[:3]
+    assert np.isfinite(f.std()["extra_leakage"])
+
+
+def test_start_on_upper_bounds_is_accepted(leaky):
+    # (bound - origin) / scale must not round a start on an upper bound outside the solver's box
+    m, res, _ = leaky
+    x0 = list(m.upper)
+    for x in (x0, [0.3, 0.4, 1.5, 0.02 * 5e-12 + 1e-10 - 0.02 * 5e-12]):
+        f = least_squares(Problem(m, res), x, max_nfev=1)
+        assert np.all(f.x <= m.upper) and np.all(f.x >= m.lower)

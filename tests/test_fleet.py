@@ -1,0 +1,185 @@
+"""Fleet batch on a real Dask LocalCluster (worker processes, loopback), a real SQLite store,
+real bags and CSVs from ``fleet simulate``; kill-and-resume with a client killed by SIGKILL."""
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import sqlite3
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+pytest.importorskip("distributed")
+
+from eha_health.bench.fleet import simulate_fleet  # noqa: E402
+from eha_health.cli import main as cli_main  # noqa: E402
+from eha_health.fleet import (FleetError, diagnose_fleet, failures_path, find_recordings,  # noqa: E402
+                              read_manifest)
+from eha_health.fleet.batch import dask_client  # noqa: E402
+from eha_health.fleet.recordings import Recording, complete_identity  # noqa: E402
+from eha_health.prognostics.store import HistoryStore, sha256_file  # noqa: E402
+
+METHOD = "deterministic"   # the fastest real method keeps these tests short; the bench runs the default
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _rows(db: Path) -> list[dict]:
+    with HistoryStore(db) as st:
+        return st.list_tests()
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("fleet_bags")
+    simulate_fleet(2, 2, seed=3, out=out, fmt="mcap")
+    return out
+
+
+@pytest.fixture(scope="module")
+def client():
+    with dask_client(workers=2) as c:
+        yield c
+
+
+def test_simulate_is_reproducible_and_the_manifest_points_at_its_files(bags, tmp_path):
+    recs = read_manifest(bags / "manifest.csv")
+    assert len(recs) == 4 and {r.actuator_id for r in recs} == {"U000", "U001"}
+    for r in recs:
+        assert r.path.is_file() and r.path.is_relative_to(bags.resolve())
+    # a folder: the recordings in its sub-folders, identified by the manifest above them
+    found = sorted(find_recordings([bags]), key=lambda r: str(r.path))
+    assert [(r.path, r.actuator_id, r.time_h) for r in found] == \
+        [(r.path, r.actuator_id, r.time_h) for r in sorted(recs, key=lambda r: str(r.path))]
+    # the last tests of each actuator are degraded, the first ones healthy (the run-to-failure laws)
+    assert all(max(r.truth.values()) == 0.0 for r in recs if r.time_h == 0.0)
+    assert all(max(r.truth.values()) > 0.2 for r in recs if r.time_h > 0.0)
+    again = tmp_path / "again"
+    simulate_fleet(2, 2, seed=3, out=again, fmt="mcap")
+    assert (again / "manifest.csv").read_text() == (bags / "manifest.csv").read_text()
+    for r in recs:
+        assert sha256_file(r.path) == sha256_file(again / r.path.relative_to(bags.resolve()))
+    other = tmp_path / "other"
+    simulate_fleet(2, 2, seed=4, out=other, fmt="csv")
+    assert (other / "manifest.csv").read_text() != (bags / "manifest.csv").read_text()
+
+
+def test_bag_metadata_names_the_actuator_and_time(bags, tmp_path):
+    src = read_manifest(bags / "manifest.csv")[1]
+    shutil.copy(src.path, tmp_path / "lone.mcap")
+    (tmp_path / "notes.csv").write_text("t,command\n0,0\n")
+    found = {r.path.name: r for r in find_recordings([tmp_path])}
+    complete_identity(found["lone.mcap"])
+    assert (found["lone.mcap"].actuator_id, found["lone.mcap"].time_h, found["lone.mcap"].usage) == \
+        (src.actuator_id, src.time_h, src.usage)
+    with pytest.raises(FleetError, match="CSV recording has no metadata"):
+        complete_identity(found["notes.csv"])
+    # cut off (no summary): the metadata, written first, is still found by reading the file through
+    (tmp_path / "cut.mcap").write_bytes(src.path.read_bytes()[:200_000])
+    cut = Recording(tmp_path / "cut.mcap")
+    complete_identity(cut)
+    assert (cut.actuator_id, cut.time_h) == (src.actuator_id, src.time_h)
+    (tmp_path / "bare.mcap").write_bytes(src.path.read_bytes()[:8] + b"\0" * 64)
+    with pytest.raises(ValueError):
+        complete_identity(Recording(tmp_path / "bare.mcap"))
+
+
+def test_manifest_paths_may_not_leave_its_folder(tmp_path, capsys):
+    (tmp_path / "m").mkdir()
+    (tmp_path / "m" / "manifest.csv").write_text("actuator_id,time_h,path\nA1,0,../secret.mcap\n")
+    with pytest.raises(FleetError, match="leaves the manifest's folder"):
+        read_manifest(tmp_path / "m" / "manifest.csv")
+    (tmp_path / "m" / "manifest.csv").write_text("actuator_id,time_h,path\nA1,-3,a.mcap\n")
+    rc = cli_main(["fleet", "diagnose", "--manifest", str(tmp_path / "m" / "manifest.csv"),
+                   "--history", str(tmp_path / "h.sqlite")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "time_h must be a finite number >= 0" in err[0]
+    assert cli_main(["fleet", "simulate", "--actuators", "0", "--tests", "2", "--out", str(tmp_path / "x")]) == 2
+
+
+def test_fleet_diagnose_on_a_local_cluster_is_idempotent_and_logs_failures(bags, client, tmp_path):
+    db = tmp_path / "history.sqlite"
+    recs = read_manifest(bags / "manifest.csv")
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(b"\x89MCAP0\r\n" + b"not a bag" * 50)
+    (tmp_path / "manifest.csv").write_text(
+        "actuator_id,time_h,path\nU900,5,broken.mcap\nU901,5,missing.csv\n")
+    bad = read_manifest(tmp_path / "manifest.csv")
+    s = diagnose_fleet(recs + bad, db, method=METHOD, client=client)
+    assert (s["diagnosed"], s["skipped"], s["failed"]) == (4, 0, 2), s
+    reasons = {Path(f["path"]).name: f["reason"] for f in s["failures"]}
+    assert "broken.mcap" in reasons["broken.mcap"] and "cannot read" in reasons["missing.csv"]
+    logged = failures_path(db).read_text().splitlines()
+    assert logged[0].startswith("wall_time_utc,path,source_hash") and len(logged) == 3
+    rows = _rows(db)
+    assert len(rows) == 4
+    for row, rec in zip(sorted(rows, key=lambda r: r["source_path"]), sorted(recs, key=lambda r: str(r.path))):
+        assert (row["actuator_id"], row["time_h"], row["usage"]) == (rec.actuator_id, rec.time_h, rec.usage)
+        assert row["source_hash"] == sha256_file(rec.path) and row["method"] == METHOD
+        for k, name in zip(("k_gm", "k_fsj", "k_bkl"), ("k_gm", "k_fsj", "k_bkl")):
+            assert abs(row[k] - rec.truth[name]) < 0.05, (row, rec.truth)
+    # set up once per worker, numba on one thread inside the tasks, the work spread over both workers
+    assert len(s["worker_setup"]) == 2 and all(w["setups"] == 1 for w in s["worker_setup"])
+    assert all(w["numba_threads"] == 1 for w in s["worker_setup"]) and s["task_numba_threads"] == [1]
+    assert sum(w["tasks"] for w in s["worker_setup"]) == 5   # broken.mcap ran and failed on a worker
+    again = diagnose_fleet(recs, db, method=METHOD, client=client)
+    assert (again["diagnosed"], again["skipped"], again["failed"]) == (0, 4, 0)
+    assert len(_rows(db)) == 4
+
+
+def _wait(cond, deadline_s: float, what: str):
+    t_end = time.monotonic() + deadline_s
+    while time.monotonic() < t_end:
+        v = cond()
+        if v:
+            return v
+        time.sleep(0.2)
+    raise AssertionError(f"timed out after {deadline_s:.0f} s waiting for {what}")
+
+
+def _count(db: Path) -> int:
+    if not db.is_file():
+        return 0
+    try:
+        with sqlite3.connect(db, timeout=30) as c:
+            return c.execute("SELECT count(*) FROM tests").fetchone()[0]
+    except sqlite3.OperationalError:   # the schema is not created yet
+        return 0
+
+
+def test_a_client_killed_mid_batch_resumes_with_no_duplicate_and_no_lost_row(client, tmp_path):
+    fleet = tmp_path / "csv_fleet"
+    simulate_fleet(2, 5, seed=11, out=fleet, fmt="csv")
+    recs = read_manifest(fleet / "manifest.csv")
+    db = tmp_path / "history.sqlite"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.Popen([sys.executable, "-m", "eha_health.cli", "fleet", "diagnose", "--manifest",
+                             str(fleet / "manifest.csv"), "--history", str(db), "--workers", "1", "--method", METHOD],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    started = []
+    try:
+        _wait(lambda: _count(db) >= 2, 600, "the killed client's first stored rows")
+        started = psutil.Process(proc.pid).children(recursive=True)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for p in started:   # the worker processes this test started through the client it killed
+            try:
+                p.kill()
+            except psutil.NoSuchProcess:
+                pass
+    before = _count(db)
+    assert 2 <= before < len(recs), f"the client finished {before} of {len(recs)} before the kill: no resume tested"
+    with sqlite3.connect(db) as c:
+        assert c.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    s = diagnose_fleet(recs, db, method=METHOD, client=client)
+    assert (s["skipped"], s["diagnosed"], s["failed"]) == (before, len(recs) - before, 0), s
+    rows = _rows(db)
+    assert len(rows) == len(recs) == len({r["source_hash"] for r in rows})
+    assert {(r["actuator_id"], r["time_h"]) for r in rows} == {(r.actuator_id, r.time_h) for r in recs}

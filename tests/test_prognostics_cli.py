@@ -1,0 +1,189 @@
+"""The history / prognose / thresholds / bench rul commands, run in-process on real files (SQLite, CSV, MCAP),
+with real diagnoses; bad input is one line, exit code 2, and the store unchanged."""
+import csv
+import json
+import sqlite3
+
+import numpy as np
+import pytest
+
+from eha_health import Faults, load, simulate
+from eha_health.cli import main
+from eha_health.prognostics.thresholds import threshold_values
+
+
+def rows_of(db):
+    con = sqlite3.connect(db)
+    try:
+        return con.execute("SELECT * FROM tests ORDER BY id").fetchall(), con.execute(
+            "SELECT * FROM maintenance").fetchall()
+    finally:
+        con.close()
+
+
+def write_csv(path, rows, header=("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl")):
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows(rows)
+    return path
+
+
+def fleet_rows(n_act=4, n_tests=12, seed=0):
+    """Linear wear of gm after 100 h, each actuator its own rate; noise 0.003 with that stated std."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for a in range(n_act):
+        rate = 8e-4 * np.exp(0.2 * rng.standard_normal())
+        for i in range(n_tests):
+            t = 40.0 * i
+            k = max(0.0, rate * max(t - 100.0, 0.0) + rng.normal(0, 0.003))
+            rows.append([f"A{a}", t, round(k, 5), 0.0, 0.0, 0.003, 0.002, 0.002])
+    return rows
+
+
+@pytest.fixture
+def db(tmp_path):
+    path = tmp_path / "h.sqlite"
+    assert main(["history", "import", str(write_csv(tmp_path / "h.csv", fleet_rows())), "--history", str(path)]) == 0
+    return path
+
+
+def run(capsys, argv):
+    code = main(argv)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_import_list_repair_prognose(db, tmp_path, capsys):
+    code, out, _ = run(capsys, ["history", "list", "--history", str(db), "--json"])
+    obj = json.loads(out)
+    assert code == 0 and len(obj["tests"]) == 48 and obj["maintenance"] == []
+    # importing the same file again adds nothing
+    code, out, _ = run(capsys, ["history", "import", str(tmp_path / "h.csv"), "--history", str(db)])
+    assert code == 0 and "imported 0 new" in out and len(rows_of(db)[0]) == 48
+
+    code, out, _ = run(capsys, ["prognose", "--history", str(db), "--json", "--next-check-h", "100"])
+    obj = json.loads(out)["actuators"]
+    assert code == 0 and set(obj) == {"A0", "A1", "A2", "A3"}
+    for a in obj.values():
+        gm = a["faults"]["gm"]
+        assert gm["rul_p05_h"] <= gm["rul_median_h"] <= gm["rul_p95_h"]
+        assert gm["threshold"] == pytest.approx(threshold_values()["gm"], abs=1e-4)
+        assert a["overall"]["dominant_fault"] == "gm" and 0 <= a["overall"]["p_fail_next"] <= 1
+        # no wear in fsj/bkl: null RUL with a reason
+        assert a["faults"]["fsj"]["rul_median_h"] is None and a["faults"]["fsj"]["reason"]
+
+    # a gm repair at the last test restarts its trend: too few tests since then for a RUL
+    code, out, _ = run(capsys, ["history", "repair", "--history", str(db), "--actuator", "A1", "--fault", "gm",
+                                "--time-h", "440"])
+    assert code == 0 and len(rows_of(db)[1]) == 1
+    code, out, _ = run(capsys, ["prognose", "--history", str(db), "--actuator", "A1", "--json"])
+    a1 = json.loads(out)["actuators"]["A1"]
+    assert a1["faults"]["gm"]["rul_median_h"] is None and "since the last repair" in a1["faults"]["gm"]["reason"]
+
+    png = tmp_path / "p.png"
+    code, out, _ = run(capsys, ["prognose", "--history", str(db), "--actuator", "A0", "--plot", str(png)])
+    assert code == 0 and "dominant fault: gm" in out and png.read_bytes()[:4] == b"\x89PNG"
+    # prognose straight from a HISTORY.csv gives the same answer as from its imported store
+    code, out_csv, _ = run(capsys, ["prognose", "--history", str(tmp_path / "h.csv"), "--actuator", "A0", "--json"])
+    code, out_db, _ = run(capsys, ["prognose", "--history", str(db), "--actuator", "A0", "--json"])
+    assert json.loads(out_csv) == json.loads(out_db)
+
+
+@pytest.mark.parametrize("rows, why", [
+    ([["A0", 10, 0.1, 0, 0, 0.01, 0.01, 0.01], ["A0", 5, 0.1, 0, 0, 0.01, 0.01, 0.01]], "out of order"),
+    ([["A0", 10, 0.1, 0, 0, 0.01, 0.01, 0.01], ["A0", 10, 0.2, 0, 0, 0.01, 0.01, 0.01]], "duplicate row"),
+    ([["A0", 10, 0.1, 0, 0, "nan", 0.01, 0.01]], "std_gm"),
+    ([["A0", 10, 0.1, 0, 0, -0.01, 0.01, 0.01]], "negative"),
+    ([["A0", 10, 1.7, 0, 0, 0.01, 0.01, 0.01]], r"outside \[0, 1.5\]"),
+    ([], "empty"),
+])
+def test_bad_import_is_one_line_and_leaves_the_store(db, tmp_path, capsys, rows, why):
+    before = rows_of(db)
+    bad = write_csv(tmp_path / "bad.csv", [["A9", 0, 0, 0, 0, 0.01, 0.01, 0.01]] + [
+        [r[0], r[1] + 1000 if r[0] == "A0" else r[1], *r[2:]] for r in rows] if rows else [])
+    code, out, err = run(capsys, ["history", "import", str(bad), "--history", str(db)])
+    assert code == 2 and out == ""
+    assert len(err.strip().splitlines()) == 1
+    import re
+    assert re.search(why, err), err
+    assert rows_of(db) == before
+
+
+def test_bad_commands_exit_2(db, tmp_path, capsys):
+    before = rows_of(db)
+    cases = [
+        (["history", "list", "--history", str(tmp_path / "none.sqlite")], "no such history"),
+        (["history", "list", "--history", str(db), "--actuator", "ZZ"], "unknown actuator"),
+        (["history", "repair", "--history", str(db), "--actuator", "A0", "--fault", "gm", "--time-h", "1e6"],
+         "in the future"),
+        (["history", "repair", "--history", str(db), "--actuator", "ZZ", "--fault", "all", "--time-h", "1"],
+         "unknown actuator"),
+        (["prognose", "--history", str(db), "--actuator", "ZZ"], "unknown actuator"),
+        (["prognose", "--history", str(db), "--next-check-h", "-5"], "--next-check-h"),
+        (["prognose", "--history", str(write_csv(tmp_path / "empty.csv", []))], "empty"),
+        (["history", "add", str(tmp_path / "missing.csv"), "--actuator", "A0", "--time-h", "1",
+          "--history", str(db)], "no such recording"),
+    ]
+    for argv, why in cases:
+        code, out, err = run(capsys, argv)
+        assert code == 2 and why in err and len(err.strip().splitlines()) == 1, (argv, err)
+    assert rows_of(db) == before
+    assert not (tmp_path / "none.sqlite").exists()
+
+
+def test_history_add_csv_and_mcap(tmp_path, capsys):
+    """Two real diagnoses: a CSV run and a monitor-style MCAP log carrying its operating time."""
+    from eha_health.io.bagrun import write_run
+    from eha_health.io.mcaplog import BagWriter
+    p = load("reference").with_effect_names(["sensor_noise"])
+    db = tmp_path / "h.sqlite"
+    r1 = simulate(kind="reference", faults=Faults(k_gm=0.3), params=p, seed=1)
+    r1.to_csv(tmp_path / "r1.csv")
+    common = ["--history", str(db), "--method", "deterministic", "--quiet"]
+    code, out, _ = run(capsys, ["history", "add", str(tmp_path / "r1.csv"), "--actuator", "X", "--time-h", "100",
+                                "--usage", "250", *common])
+    assert code == 0 and out.startswith("added: X at 100 h")
+    # the same recording again: nothing added, no diagnosis needed; for another actuator: an error
+    code, out, _ = run(capsys, ["history", "add", str(tmp_path / "r1.csv"), "--actuator", "X", "--time-h", "200",
+                                *common])
+    assert code == 0 and "already in" in out
+    code, _, err = run(capsys, ["history", "add", str(tmp_path / "r1.csv"), "--actuator", "Y", "--time-h", "200",
+                                *common])
+    assert code == 2 and "already in the history for actuator X" in err
+
+    r2 = simulate(kind="reference", faults=Faults(k_gm=0.35), params=p, seed=2)
+    bag = tmp_path / "r2.mcap"
+    with BagWriter(bag) as w:
+        write_run(w, r2, test_id=3, start_ns=7_000_000_000)
+        w.add_metadata("history/test_3", {"time_h": "160.5", "usage": "400", "sim_time_s": "7.0"})
+    # an operating time before the stored one is refused (after the diagnosis), and nothing is written
+    before = rows_of(db)
+    code, _, err = run(capsys, ["history", "add", str(bag), "--actuator", "X", "--time-h", "50", *common])
+    assert code == 2 and "out of order" in err and rows_of(db) == before
+    code, out, _ = run(capsys, ["history", "add", str(bag), "--actuator", "X", "--json", *common])
+    res = json.loads(out)
+    assert code == 0 and res["added"] and res["time_h"] == 160.5 and res["usage"] == 400.0
+    code, out, _ = run(capsys, ["history", "list", "--history", str(db), "--json"])
+    tests = json.loads(out)["tests"]
+    assert [t["time_h"] for t in tests] == [100.0, 160.5] and tests[1]["sim_time_s"] == 7.0
+    assert tests[0]["k_gm"] == pytest.approx(0.3, abs=0.02) and tests[1]["k_gm"] == pytest.approx(0.35, abs=0.02)
+    assert tests[0]["std_gm"] > 0 and tests[0]["method"] == "deterministic" and tests[0]["wall_time_utc"]
+
+
+def test_thresholds_command(capsys):
+    code, out, _ = run(capsys, ["thresholds", "--json"])
+    obj = json.loads(out)
+    assert code == 0 and set(obj) == {"gm", "fsj", "bkl"}
+    assert {f: v["k"] for f, v in obj.items()} == threshold_values()
+    code, out, _ = run(capsys, ["thresholds"])
+    assert code == 0 and "K_GM" in out and "breaks" in out
+
+
+def test_bench_rul_time_prognose(capsys):
+    code, out, _ = run(capsys, ["bench", "rul", "--time-prognose", "6", "--json"])
+    obj = json.loads(out)
+    assert code == 0 and obj["actuators"] == 6 and obj["series"] == 18 and obj["wall_time_s"] > 0
+    code, _, err = run(capsys, ["bench", "rul", "--units", "1"])
+    assert code == 2 and "--units" in err

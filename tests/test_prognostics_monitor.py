@@ -1,0 +1,135 @@
+"""The monitor's history and RUL: the ROS-free prognosis step on a real SQLite file with real diagnoses,
+then the real node graph, its /diagnostics read by an independent subscriber and its latched eha/rul."""
+import csv
+import json
+import sqlite3
+
+import numpy as np
+import pytest
+
+from eha_health import Faults, diagnose, load, simulate
+from eha_health.monitoring.health import HealthPolicy, escalate
+from eha_health.monitoring.prognosis import PrognosisStep, rul_values
+from eha_health.physics.faults import FAULT_KEYS
+from eha_health.prognostics.store import HistoryStore
+
+RATE = 1.5e-3      # K_GM per hour after onset at 100 h: threshold 0.816 near 640 h
+
+
+def gm_at(t):
+    return RATE * max(t - 100.0, 0.0)
+
+
+def seed_history(path, n=9, dt=40.0, actuator="eha"):
+    """A worn history: gm rising linearly, 1-sd error 0.004."""
+    rng = np.random.default_rng(3)
+    csvp = path.with_suffix(".csv")
+    with open(csvp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+        for i in range(n):
+            t = dt * i
+            w.writerow([actuator, t, round(max(0.0, gm_at(t) + rng.normal(0, 0.004)), 5), 0, 0, 0.004, 0.002, 0.002])
+    with HistoryStore(path) as st:
+        st.import_csv(csvp)
+    return dt * (n - 1)
+
+
+def count(db):
+    con = sqlite3.connect(db)
+    try:
+        return con.execute("SELECT COUNT(*) FROM tests").fetchone()[0]
+    finally:
+        con.close()
+
+
+@pytest.fixture(scope="module")
+def diagnosis_at_500h():
+    p = load("reference").with_effect_names(["sensor_noise"])
+    r = simulate(kind="reference", faults=Faults(k_gm=gm_at(500.0)), params=p, seed=5)
+    return diagnose(r, method="deterministic"), r
+
+
+def test_step_appends_prognoses_and_escalates(tmp_path, diagnosis_at_500h):
+    d, r = diagnosis_at_500h
+    db = tmp_path / "h.sqlite"
+    last = seed_history(db)
+    step = PrognosisStep(db, "eha", next_check_h=200.0, warn_p_fail=0.05, error_p_fail=0.2)
+    out = step.after_diagnosis(d, last + 180.0, sim_time_s=12.5, response=r)
+    assert out.appended and out.error is None and count(db) == 10
+    with HistoryStore(db) as st:
+        row = st.list_tests("eha")[-1]
+    assert row["time_h"] == last + 180.0 and row["sim_time_s"] == 12.5 and row["wall_time_utc"]
+    assert row["k_gm"] == pytest.approx(d.faults.k_gm) and row["method"] == "deterministic"
+    ov = out.prognosis["overall"]
+    # ~0.6 at 500 h with ~140 h to go: failure before a check 200 h away is likely
+    assert ov["dominant_fault"] == "gm" and ov["p_fail_next"] >= 0.2
+    assert 50 < ov["rul_median_h"] < 300
+    assert step.level(out)[0] == "ERROR"
+    vals = rul_values(out)
+    for f in ("", *(f"_{k}" for k in FAULT_KEYS)):
+        for key in ("rul_median_h", "rul_p05_h", "rul_p95_h", "p_fail_next"):
+            assert key + f in vals
+    assert vals["rul_median_h"] == ov["rul_median_h"] and vals["rul_median_h_fsj"] == "none"
+    v = escalate(HealthPolicy().verdict(1, 0, d), *step.level(out), vals)
+    assert v.level == "ERROR" and "P(failure before the next check" in v.message and v.values["dominant_fault"] == "gm"
+
+    # the same window again adds no row; an earlier operating time is refused, the RUL still given
+    again = step.after_diagnosis(d, last + 300.0, response=r)
+    assert not again.appended and again.error is None and count(db) == 10
+    d2 = diagnose(simulate(kind="reference", faults=Faults(k_gm=0.3),
+                           params=load("reference").with_effect_names(["sensor_noise"]), seed=6), method="deterministic")
+    bad = step.after_diagnosis(d2, 10.0)
+    assert not bad.appended and "out of order" in bad.error and bad.prognosis is not None and count(db) == 10
+    # a lenient next check: nothing to warn about
+    calm = PrognosisStep(db, "eha", next_check_h=1.0).after_diagnosis(d2, 5.0)
+    assert PrognosisStep(db, "eha", next_check_h=1.0).level(calm)[0] == "OK"
+
+
+def test_step_refuses_bad_settings_and_survives_a_bad_file(tmp_path, diagnosis_at_500h):
+    from eha_health.prognostics.config import PrognosticsError
+    with pytest.raises(PrognosticsError, match="warn_p_fail"):
+        PrognosisStep(tmp_path / "h.sqlite", "eha", warn_p_fail=0.5, error_p_fail=0.1)
+    junk = tmp_path / "junk.sqlite"
+    junk.write_bytes(b"this is not a database" * 100)
+    out = PrognosisStep(junk, "eha").after_diagnosis(diagnosis_at_500h[0], 1.0)
+    assert not out.appended and "not a history" in out.error and out.prognosis is None
+    assert junk.read_bytes() == b"this is not a database" * 100
+
+
+def test_monitor_node_appends_and_publishes_the_rul(tmp_path):
+    from eha_health.io.bagrun import history_times
+    from eha_health.ros.graph import Graph
+    from msg_bridge import contract as C
+    db = tmp_path / "h.sqlite"
+    last = seed_history(db)
+    log = tmp_path / "mon.mcap"
+    params = {"history": str(db), "operating_hours": last + 180.0, "next_check_h": 200.0}
+    with Graph(faults=Faults(k_gm=gm_at(last + 180.0)), method="deterministic", log_path=log,
+               monitor_params=params) as g:
+        seen = g.listen(C.DIAGNOSTICS, "independent_listener")   # an independent node reads /diagnostics
+        res = g.run_test()
+        assert res["prognosis"].appended, res["message"]
+
+        def has_rul():
+            return any(any(kv.key == "rul_median_h" for kv in st.values) for m in seen for st in m.status)
+        g.spin_until(has_rul, 300.0, "/diagnostics with the RUL")
+        st = [st for m in seen for st in m.status if any(kv.key == "rul_median_h" for kv in st.values)][-1]
+        kv = {k.key: k.value for k in st.values}
+        got = g.listen(C.RUL, "late_rul")   # a late subscriber still gets the latched prognosis
+        g.spin_until(lambda: got, 120.0, "latched eha/rul")
+    ov = res["prognosis"].prognosis["overall"]
+    assert st.hardware_id == "eha" and st.level == bytes([2])          # ERROR: failure likely before the check
+    assert "P(failure before the next check" in st.message
+    assert float(kv["rul_median_h"]) == pytest.approx(ov["rul_median_h"], rel=1e-5)
+    assert kv["dominant_fault"] == "gm" and float(kv["p_fail_next_gm"]) >= 0.2 and kv["rul_median_h_bkl"] == "none"
+    assert float(kv["k_gm"]) == pytest.approx(gm_at(last + 180.0), abs=0.02)
+    rul = json.loads(got[0].data)
+    assert rul["actuator_id"] == "eha" and rul["time_h"] == last + 180.0
+    assert rul["overall"]["rul_median_h"] == ov["rul_median_h"]
+    with HistoryStore(db) as hs:
+        row = hs.list_tests("eha")[-1]
+    assert count(db) == 10 and row["time_h"] == last + 180.0 and row["sim_time_s"] is not None
+    assert row["wall_time_utc"] and row["method"] == "deterministic"
+    # the monitor's log says where the test went: history add of the log finds the same time
+    assert history_times(log, res["test_id"])["time_h"] == last + 180.0
