@@ -20,7 +20,8 @@ the fitness):
   ``lsq``.
 * ``ga`` -- paper Sec. V.B (:mod:`.genetic`) on all three at once, then the local refinement.
 * ``hybrid`` -- paper Sec. VII's proposal: the deterministic estimate seeds the GA
-  population, then the local refinement. The default.
+  population, then the local refinement (the default before ``fast``; the discrepancy loop
+  starts from it).
 
 The ``lsq`` refinement is bounded least squares then a compass polish (:mod:`.local`); the
 ``paper`` fitness is refined by bounded Powell (the paper's fmincon hybrid function).
@@ -65,6 +66,9 @@ from .uncertainty import (COVARIANCE_STEP_SCALE, autocorr_inflation, correlation
 #: Identification methods.
 METHODS = ("fast", "deterministic", "ga", "hybrid")
 DEFAULT_METHOD = "fast"
+#: Methods whose ``lsq`` estimate is refined on the whole-test residual (``fast`` fits the stage
+#: segments only: on the whole test it sits beside a minimum of the saw-tooth in K_BKL).
+WHOLE_TEST_METHODS = ("deterministic", "ga", "hybrid")
 #: Settings of the bounded least-squares refinement of a diagnosis.
 REFINE = {"xtol": 1e-6, "max_nfev": 60}
 #: Settings of the fast method's joint least squares (xtol is relative to the knobs' typical 0.1:
