@@ -253,6 +253,12 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
 _TABLES: dict = {}
 
 
+def prepare(params: ModelParams | None = None, sequence: FDISequence | None = None) -> None:
+    """Build what diagnoses with ``params`` cache (the start's signature tables, one batch of monitor
+    runs), so that a long-lived process (a fleet worker, the monitor node) pays it before its first test."""
+    _start_table(params if params is not None else load("monitor"), sequence or FDISequence())
+
+
 def _start_table(params: ModelParams, sequence: FDISequence) -> StartTable:
     """Signature tables of the monitor model (cached per parameter set and sequence, the last few:
     the discrepancy loop alternates between the shipped monitor and a candidate's)."""
