@@ -179,10 +179,16 @@ for kind in ("reference", "monitor"):
     out[kind + "_realtime_factor"] = seq.duration / min(ts)
 r = simulate(faults=Faults(0.4, 0.6, 0.4))
 diagnose(r, method="deterministic")
-for m in ("hybrid", "deterministic"):
+try:
+    from eha_health.identification.diagnose import DEFAULT_METHOD
+except ImportError:
+    DEFAULT_METHOD = "hybrid"
+diagnose(r)
+for m in ("hybrid", "deterministic", "default"):
     ts = []
     for _ in range(3):
-        t0 = time.perf_counter(); diagnose(r, method=m); ts.append(time.perf_counter() - t0)
+        t0 = time.perf_counter(); diagnose(r, method=DEFAULT_METHOD if m == "default" else m)
+        ts.append(time.perf_counter() - t0)
     out["diagnose_" + m + "_s"] = min(ts)
 print(json.dumps(out))
 """

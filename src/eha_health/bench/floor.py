@@ -11,7 +11,7 @@ import numpy as np
 
 from ..discrepancy.candidates import BY_NAME
 from ..discrepancy.evidence import candidate_grid
-from ..identification.diagnose import diagnose
+from ..discrepancy.loop import start_diagnosis
 from ..identification.knobs import FAULT_KNOBS
 from ..identification.local import least_squares
 from ..identification.problem import KnobModel, Problem
@@ -25,12 +25,13 @@ from .discrepancy import EFFECTS
 
 
 def residual_floor(n: int = 12, seed: int = 2024, progress=None) -> dict:
-    """Max per-channel diagnosis residual RMS [SI] over ``n`` clean random-fault reference runs."""
+    """Max per-channel residual RMS [SI] of the loop's starting diagnosis
+    (:func:`~eha_health.discrepancy.loop.start_diagnosis`) over ``n`` clean random-fault reference runs."""
     rng = np.random.default_rng(seed)
     rows = []
     for i in range(n):
         f = Faults(*rng.uniform(0.0, 1.0, 3))
-        d = diagnose(simulate(faults=f))
+        d = start_diagnosis(simulate(faults=f))
         rows.append([d.rms[c] for c in MEASURED])
         if progress:
             progress(f"floor: run {i + 1}/{n}")

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import differential_evolution, nnls
 
-from ..identification.diagnose import DEFAULT_METHOD, METHODS, diagnose
+from ..identification.diagnose import DEFAULT_METHOD, GUARD_FACTOR, METHODS, diagnose
 from ..identification.fitness import make_fitness
 from ..identification.knobs import FAULT_KNOBS
 from ..identification.problem import KnobModel, Problem
@@ -86,6 +86,9 @@ class Row:
     group: str  # single / combined / random
     std_stat: tuple = (np.nan,) * 3     # the Gauss-Newton part of std
     noise_position: float = 0.0         # position noise measured in the run [m]
+    fit_cost: float = float("nan")      # stage cost at the estimate (fitness.fdi_stage_residual)
+    fit_quality: float = float("nan")   # fit_cost over the model's floor plus the noise's cost
+    guard: str = ""                     # the fast method's global guard: passed / fired
 
 
 def run_de(resp, seed: int, fitness: str = "lsq"):
@@ -122,7 +125,7 @@ def run_bench(methods=METHODS, fitness: str = "lsq", noise: bool = False,
             rows.append(Row(c, d.faults.as_tuple(), tuple(d.std[k] for k in FAULT_NAMES),
                             d.wall_time_s, d.evaluations, group,
                             tuple(d.std_stat[k] for k in FAULT_NAMES),
-                            noise_level(responses[c].position)))
+                            noise_level(responses[c].position), d.fit_cost, d.fit_quality, d.guard))
             if progress:
                 progress(f"{m:13s} {group:8s} true {c} -> est ({rows[-1].est[0]:.4f}, {rows[-1].est[1]:.4f}, "
                          f"{rows[-1].est[2]:.4f})  {d.wall_time_s:.2f} s")
@@ -147,7 +150,8 @@ def summarise(rows: list[Row]) -> dict:
                      "std": [float(v) for v in r.std], "std_stat": [float(v) for v in r.std_stat],
                      "noise_position": float(r.noise_position), "pct_err": pct_errors(r.case, r.est),
                      "abs_err": [float(v) for v in err], "mean_pct_err": mean_pct(r.case, r.est),
-                     "within_2sd": within, "wall_time_s": r.wall_time_s, "evaluations": r.evaluations})
+                     "within_2sd": within, "wall_time_s": r.wall_time_s, "evaluations": r.evaluations,
+                     "fit_cost": float(r.fit_cost), "fit_quality": float(r.fit_quality), "guard": r.guard})
 
     def table6(groups):
         sel = [x for x in recs if x["group"] in groups]
@@ -173,6 +177,10 @@ def summarise(rows: list[Row]) -> dict:
             "wall_time_s_mean": float(np.mean([x["wall_time_s"] for x in recs])),
             "wall_time_s_max": float(np.max([x["wall_time_s"] for x in recs])),
             "evaluations_mean": float(np.mean([x["evaluations"] for x in recs])),
+            "guard_fired": int(sum(x["guard"] == "fired" for x in recs)),
+            "guard_judged": int(sum(x["guard"] in ("passed", "fired") for x in recs)),
+            "fit_quality_max": float(np.nanmax([x["fit_quality"] for x in recs]))
+            if np.isfinite([x["fit_quality"] for x in recs]).any() else None,
             "combined_table_wall_s": float(sum(x["wall_time_s"] for x in recs if x["group"] == "combined"))}
 
 
@@ -209,11 +217,10 @@ def format_markdown(res: dict, command: str) -> str:
                 cov = s["coverage_2sd_random"]
                 L.append(f"| {m} | {' | '.join(_pct_cells(t, '{:.3f}'))} | {t['max_abs_err']:.4f} | "
                          f"{_f(cov, '{:.0%}')} |")
-    if "scipy_de" in methods and DEFAULT_METHOD in methods:
-        a, b = methods[DEFAULT_METHOD], methods["scipy_de"]
-        L += ["", f"Peer ratio (scipy differential_evolution / {DEFAULT_METHOD}): max abs error "
-                  f"{b['max_abs_err_all'] / max(a['max_abs_err_all'], 1e-12):.2f}x, mean wall time "
-                  f"{b['wall_time_s_mean'] / a['wall_time_s_mean']:.2f}x."]
+    if peer_ratio(res):
+        L += ["", peer_ratio(res) + "."]
+    if guard_line(res):
+        L += ["", guard_line(res) + "."]
     for m, s in methods.items():
         L += ["", f"### {m}: every case (true -> estimated; Eq. 2 % error, absolute where K = 0)", "",
               "| group | K_GM | K_FSJ | K_BKL | est K_GM | est K_FSJ | est K_BKL | % err GM / FSJ / BKL | mean % | time [s] |",
@@ -231,6 +238,29 @@ def format_markdown(res: dict, command: str) -> str:
     return "\n".join(L) + "\n"
 
 
+def peer_ratio(res: dict) -> str:
+    """The peer ratio line (scipy DE / the default method, time and max abs error), or ''."""
+    methods = res["methods"]
+    if "scipy_de" not in methods or DEFAULT_METHOD not in methods:
+        return ""
+    a, b = methods[DEFAULT_METHOD], methods["scipy_de"]
+    return (f"Peer ratio (scipy differential_evolution / {DEFAULT_METHOD}, same cases, one run): mean wall time "
+            f"{b['wall_time_s_mean'] / a['wall_time_s_mean']:.1f}x, max abs error "
+            f"{b['max_abs_err_all'] / max(a['max_abs_err_all'], 1e-12):.2f}x (DE {b['max_abs_err_all']:.4f}, "
+            f"{DEFAULT_METHOD} {a['max_abs_err_all']:.4f})")
+
+
+def guard_line(res: dict) -> str:
+    """How often the fast method's global guard fired, and the largest fit quality seen, or ''."""
+    out = []
+    for m, s in res["methods"].items():
+        if s.get("guard_judged"):
+            q = s["fit_quality_max"]
+            out.append(f"{m}: global guard fired in {s['guard_fired']} of {s['guard_judged']} diagnoses "
+                       f"(largest fit quality {_f(q, '{:.2f}')}, limit {GUARD_FACTOR:g})")
+    return "; ".join(out)
+
+
 def format_text(res: dict) -> str:
     L = [f"bench paper: fitness {res['fitness']}, noise {'on' if res['noise'] else 'off'}, seed {res['seed']}",
          f"{'method':14s} {'FSJ %':>8s} {'GM %':>8s} {'BKL %':>8s} {'mean %':>8s} {'max|err|':>9s} {'t mean':>7s} {'t max':>7s} {'sims':>6s}"]
@@ -245,6 +275,9 @@ def format_text(res: dict) -> str:
             r = s["table6_random"]
             L.append(f"{'  random':14s} {' '.join(_pct_cells(r, '{:8.3f}'))} {r['max_abs_err']:9.4f}  "
                      f"within 2 sd: {_f(s['coverage_2sd_random'], '{:.0%}')} (all cases {_f(s['coverage_2sd'], '{:.0%}')})")
+    for line in (peer_ratio(res), guard_line(res)):
+        if line:
+            L.append(line)
     return "\n".join(L)
 
 
@@ -279,6 +312,9 @@ def model_error_yaml(res: dict, method: str, command: str, previous: dict | None
         data["model_error_sd"] = dict(zip(names, np.sqrt(err2)))
         data["model_error_variance"] = {n: list(nnls(design, e2[:, i])[0]) for i, n in enumerate(names)}
         data["model_error_command"] = f"{command}  ({len(rows)} clean runs, {method}, fitness {res['fitness']})"
+        costs = [r["fit_cost"] for r in rows if np.isfinite(r["fit_cost"])]
+        if costs:
+            data["fit_floor"] = float(max(costs))
     lines = ["# Error terms added in quadrature to the Gauss-Newton standard error of every diagnosis",
              "# (identify.model_error, identify.noise_error), 1 sd per fault coefficient.",
              "# model_error_sd: the monitor's model-form error, the RMS identification error on clean",
@@ -287,6 +323,8 @@ def model_error_yaml(res: dict, method: str, command: str, previous: dict | None
              "# noise_error_sd: what sensor noise adds beyond the Gauss-Newton term (it moves the",
              "#   stick-slip and backlash events): the RMS error on noisy runs less the other two parts,",
              "#   at position noise noise_reference_m [m]; scaled by the noise measured in each run.",
+             "# fit_floor: the largest stage cost (fitness.fdi_stage_residual) a diagnosis left on the same",
+             "#   clean runs: the model's floor, against which the fast method's global guard judges a fit.",
              "# Each block was made by the command beside it (eha-health bench paper ... --write-model-error)."]
     for block in ("model_error", "noise_error"):
         if f"{block}_sd" in data:
@@ -295,6 +333,8 @@ def model_error_yaml(res: dict, method: str, command: str, previous: dict | None
                 lines.append(f"noise_reference_m: {data['noise_reference_m']:.4g}")
             lines.append(f"{block}_sd:")
             lines += [f"  {n}: {float(data[f'{block}_sd'][n]):.6f}" for n in names]
+            if block == "model_error" and data.get("fit_floor"):
+                lines.append(f"fit_floor: {float(data['fit_floor']):.4g}")
             if block == "model_error" and "model_error_variance" in data:
                 lines.append("# the same runs: var = c0 + c1 K_GM + c2 K_FSJ + c3 K_BKL (estimates), NNLS of err^2")
                 lines.append("model_error_variance:")

@@ -85,6 +85,87 @@ def ga_generation(pop: int = 20, repeat: int = 5) -> dict:
             "ga_pool_over_batch": pool / batch}
 
 
+#: Case of the diagnosis timings: the paper's combined case of the demo (K_GM, K_FSJ, K_BKL).
+DIAGNOSIS_CASE = (0.4, 0.6, 0.4)
+
+
+def diagnosis_times(repeat: int = 3, methods=None, de: bool = False) -> dict:
+    """Wall time and monitor runs of one diagnosis per method, clean and with the default sensor
+    noise, measured side by side in this process (best of ``repeat``; caches warm), and each
+    method's time over the default's: the ratio holds when the machine is busy, the seconds do not.
+    With ``de``, scipy's differential_evolution (the peer of ``bench paper``) runs alongside, and
+    its max abs error over the default's is reported too."""
+    from ..identification.diagnose import DEFAULT_METHOD, METHODS, diagnose
+    from ..physics.model import simulate
+    from .paper import run_de
+    methods = tuple(methods or METHODS)
+    ref = load("reference")
+    cases = {"clean": simulate("reference", Faults(*DIAGNOSIS_CASE)),
+             "noisy": simulate("reference", Faults(*DIAGNOSIS_CASE),
+                               params=ref.with_effects(sensor_noise={"enabled": True}), seed=1)}
+    diagnose(cases["clean"], method=DEFAULT_METHOD)      # signature tables, numba caches
+    out: dict = {"diagnosis_case": list(DIAGNOSIS_CASE), "default_method": DEFAULT_METHOD}
+    for label, r in cases.items():
+        for _ in range(repeat):
+            for m in methods:          # interleaved, so load changes hit every method alike
+                t0 = time.perf_counter()
+                d = diagnose(r, method=m)
+                dt = time.perf_counter() - t0
+                key = f"diagnose_{m}_{label}"
+                out[key + "_s"] = min(out.get(key + "_s", np.inf), dt)
+                out[key + "_runs"] = d.evaluations
+                out[key + "_err"] = float(np.max(np.abs(np.array(d.faults.as_tuple()) - DIAGNOSIS_CASE)))
+            if de:
+                est, dt, runs = run_de(r, 0)
+                key = f"diagnose_scipy_de_{label}"
+                out[key + "_s"] = min(out.get(key + "_s", np.inf), dt)
+                out[key + "_runs"] = runs
+                out[key + "_err"] = float(np.max(np.abs(np.array(est) - DIAGNOSIS_CASE)))
+        for m in methods + (("scipy_de",) if de else ()):
+            out[f"diagnose_{m}_{label}_over_default"] = (out[f"diagnose_{m}_{label}_s"]
+                                                         / out[f"diagnose_{DEFAULT_METHOD}_{label}_s"])
+    return out
+
+
+def step_check(substeps=(16, 15, 10), repeat: int = 3) -> dict:
+    """What a larger fine step of the monitor would buy and cost: per-run time ratio to the shipped
+    step, and the RMS change of each measured channel over the monitor's residual floor
+    (data/discrepancy.yaml), largest over a healthy, a combined and a backlash-limit case.
+
+    ``substeps``: fine steps per sample period to try (the shipped monitor takes 20 at 1 kHz; the
+    step must divide the sample period, so 16, 15, 10 are 1.25x, 1.33x and 2x the shipped step)."""
+    from ..discrepancy.settings import fdi_settings
+    from ..physics.model import simulate
+    floor = fdi_settings().floor
+    mon = load("monitor")
+    seq = FDISequence()
+    cmd = seq.command(seq.times(mon.integration.sample_rate))
+    cases = [(0.0, 0.0, 0.0), DIAGNOSIS_CASE, (0.0, 0.0, 1.0)]
+
+    def per_run(p):
+        plant = Plant(params=p, faults=Faults(*DIAGNOSIS_CASE))
+        plant.step(cmd)
+
+        def one():
+            plant.reset()
+            plant.step(cmd)
+        return _best(one, repeat)
+    base_t = per_run(mon)
+    base = [simulate("monitor", Faults(*c), params=mon) for c in cases]
+    out: dict = {"shipped_dt_s": mon.integration.dt, "steps": []}
+    for n in substeps:
+        p = mon.updated("integration", dt=1.0 / (mon.integration.sample_rate * n))
+        worst = dict.fromkeys(floor, 0.0)
+        for c, b in zip(cases, base):
+            r = simulate("monitor", Faults(*c), params=p)
+            for ch in floor:
+                d = float(np.sqrt(np.mean((getattr(r, ch) - getattr(b, ch)) ** 2))) / floor[ch]
+                worst[ch] = max(worst[ch], d)
+        out["steps"].append({"dt_s": p.integration.dt, "time_ratio": per_run(p) / base_t,
+                             "change_over_floor": worst})
+    return out
+
+
 def speed(repeat: int = 7, batch: int = 40, with_compile: bool = True) -> dict:
     """Measure; returns a dict of figures (seconds, ratios)."""
     seq = FDISequence()
@@ -123,6 +204,8 @@ def speed(repeat: int = 7, batch: int = 40, with_compile: bool = True) -> dict:
         "batch_speedup": one_core / all_cores,
     })
     res.update(ga_generation())
+    res.update(diagnosis_times(de=True))
+    res["step_check"] = step_check()
     return res
 
 
@@ -142,6 +225,22 @@ def format_speed(r: dict) -> str:
         lines.append(f"  one GA generation ({r['ga_population']} individuals): compiled batch "
                      f"{r['ga_batch_s'] * 1e3:.1f} ms, process pool of {r['ga_pool_workers']} "
                      f"{r['ga_pool_s'] * 1e3:.1f} ms: pool/batch {r['ga_pool_over_batch']:.2f}x")
+    if "default_method" in r:
+        from ..identification.diagnose import METHODS
+        lines.append(f"  one diagnosis of {tuple(r['diagnosis_case'])} (best of 3, side by side; over "
+                     f"{r['default_method']}: the ratio holds on a busy machine):")
+        for label in ("clean", "noisy"):
+            lines.append(f"    {label}: " + ", ".join(
+                f"{m} {r[f'diagnose_{m}_{label}_s']:.3f} s / {r[f'diagnose_{m}_{label}_runs']} runs "
+                f"({r[f'diagnose_{m}_{label}_over_default']:.1f}x)" for m in METHODS + ("scipy_de",)
+                if f"diagnose_{m}_{label}_s" in r))
+    if "step_check" in r:
+        sc = r["step_check"]
+        lines.append(f"  larger monitor step (shipped dt {sc['shipped_dt_s']:.1e} s), time per run and the largest "
+                     f"change of a channel over its model floor:")
+        for st in sc["steps"]:
+            ch = ", ".join(f"{c} {v:.2f}" for c, v in st["change_over_floor"].items())
+            lines.append(f"    dt {st['dt_s']:.2e} s: time x{st['time_ratio']:.2f}; change/floor {ch}")
     return "\n".join(lines)
 
 

@@ -1,5 +1,5 @@
-"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy, rul, fleet,
-fuzz, soak, loss)."""
+"""``eha-health bench WHAT``: figures, not assertions (speed, paper, graph, floor, discrepancy, guard, rul,
+fleet, fuzz, soak, loss)."""
 from __future__ import annotations
 
 import json
@@ -48,6 +48,13 @@ def bench_discrepancy(args) -> int:
     res = synthetic(seed=args.seed or 0, n_noise=args.random or 6, progress=progress(args), effects=effects,
                     fault_sets=FAULT_SETS[:args.fault_sets], two_effects=not args.no_two)
     print(json.dumps(res, indent=2, default=float) if args.json else "\n" + format_synthetic(res))
+    return 0
+
+
+def bench_guard(args) -> int:
+    from ..bench.guard import format_guard, guard_bench
+    res = guard_bench(n=args.random or 12, seed=args.seed or 3, progress=progress(args))
+    print(json.dumps(res, indent=2, default=float) if args.json else format_guard(res))
     return 0
 
 
@@ -161,8 +168,8 @@ def bench_fleet(args) -> int:
 
 
 BENCHES = {"speed": bench_speed, "paper": bench_paper, "graph": bench_graph, "floor": bench_floor,
-           "discrepancy": bench_discrepancy, "rul": bench_rul, "fleet": bench_fleet, "fuzz": bench_fuzz,
-           "soak": bench_soak, "loss": bench_loss}
+           "discrepancy": bench_discrepancy, "guard": bench_guard, "rul": bench_rul, "fleet": bench_fleet,
+           "fuzz": bench_fuzz, "soak": bench_soak, "loss": bench_loss}
 
 
 def cmd_bench(args) -> int:
@@ -175,19 +182,21 @@ def register(sub) -> None:
     b = sub.add_parser("bench", help="benchmarks: " + " | ".join(BENCHES),
                        parents=[fitness_option("paper: fitness function"), json_flag(), quiet_flag()])
     b.add_argument("what", help="speed, paper, graph, floor (the monitor's residual floor), discrepancy "
-                                "(the loop on synthetic undeclared effects), rul (run-to-failure fleet: prognostics), "
-                                "fleet (Dask throughput), fuzz (untrusted inputs), soak (many tests) or loss (lossy link)")
+                                "(the loop on synthetic undeclared effects), guard (the fast method's global guard "
+                                "from random starts), rul (run-to-failure fleet: prognostics), fleet (Dask "
+                                "throughput), fuzz (untrusted inputs), soak (many tests) or loss (lossy link)")
     b.add_argument("--write", metavar="YAML", help="floor: write the settings file, e.g. src/eha_health/data/discrepancy.yaml")
     b.add_argument("--rate", type=float, default=0.0, help="graph: command playback speed (0 as fast as possible)")
     b.add_argument("--no-compile", action="store_true", help="speed: skip the fresh-process compile-time measurement")
-    b.add_argument("--method", default="all", help="paper: deterministic, ga, hybrid or all; fleet: the "
+    b.add_argument("--method", default="all", help="paper: fast, deterministic, ga, hybrid or all; fleet: the "
                                                    "diagnosis method (all: the default method)")
     b.add_argument("--noise", action="store_true", help="paper: default sensor noise on the reference runs")
     b.add_argument("--random", type=int, default=0, metavar="N",
-                   help="paper: add N random K triples in [0,1]^3; floor: runs (12); discrepancy: noise-only runs (6)")
+                   help="paper: add N random K triples in [0,1]^3; floor: runs (12); discrepancy: noise-only runs (6); "
+                        "guard: cases (12)")
     b.add_argument("--seed", type=int, default=None, help="paper: seed of random cases, noise and GA (0); "
                                                           "rul: fleet seed (bench.seed of data/prognostics.yaml); "
-                                                          "fleet: seed of the simulated fleet (17); "
+                                                          "fleet: seed of the simulated fleet (17); guard: seed (3); "
                                                           "fuzz, soak: seed (0); loss: drop seed (7)")
     b.add_argument("--tests", type=int, default=None, metavar="N",
                    help="fleet: recordings diagnosed by each configuration (60); soak: consecutive tests (300)")

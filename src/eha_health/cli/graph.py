@@ -20,6 +20,7 @@ def truth_table(truth, d) -> list[str]:
 
 def cmd_demo(args) -> int:
     from ..plotting import plot_diagnosis
+    from ..identification.diagnose import DEFAULT_METHOD
     from ..ros.graph import Graph
     faults = Faults.parse(args.faults)
     out = Path(args.out)
@@ -27,7 +28,7 @@ def cmd_demo(args) -> int:
     log, png = out / "demo.mcap", out / "demo.png"
     log.unlink(missing_ok=True)
     print(f"Running the graph in one process: plant (reference EHA, K_GM={faults.k_gm:g}, K_FSJ={faults.k_fsj:g}, "
-          f"K_BKL={faults.k_bkl:g}), command (FDI test, 1 kHz, as fast as possible), monitor (hybrid) ...",
+          f"K_BKL={faults.k_bkl:g}), command (FDI test, 1 kHz, as fast as possible), monitor ({DEFAULT_METHOD}) ...",
           flush=True)
     with Graph(faults=faults, log_path=log, rate=0.0) as g:
         r = g.run_test()

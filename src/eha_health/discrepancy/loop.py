@@ -36,7 +36,7 @@ from typing import Callable
 
 import numpy as np
 
-from ..identification.diagnose import diagnose
+from ..identification.diagnose import WHOLE_TEST_METHODS, Diagnosis, diagnose
 from ..identification.knobs import FAULT_KNOBS, Knob
 from ..identification.local import least_squares
 from ..identification.problem import KnobModel, Problem
@@ -298,13 +298,31 @@ def quantile_segments(record: Record, parts: int = 5) -> dict[str, np.ndarray]:
     return {f"part{i + 1}": idx == i for i in range(parts)}
 
 
+#: The diagnosis the loop starts from when it is given none that fits the whole test: the loop
+#: analyses the whole-test ``lsq`` residual, and its local fit from a ``fast`` estimate (fitted on the
+#: stage segments) stops in a neighbouring tooth of that residual's saw-tooth in K_BKL, whose
+#: structure a candidate then explains (measured: flow_asymmetry selected before the true
+#: valve_null_bias at K_BKL = 0.7). ``bench floor`` measures the floor on this diagnosis.
+START_METHOD = "hybrid"
+
+
+def start_diagnosis(response, seed: int = 0, params: ModelParams | None = None, progress=None,
+                    diagnosis: Diagnosis | None = None) -> Diagnosis:
+    """The diagnosis the loop starts from: ``diagnosis`` if its estimate fits the whole-test
+    ``lsq`` residual (a :data:`~eha_health.identification.diagnose.WHOLE_TEST_METHODS` one),
+    else :data:`START_METHOD` with ``seed``."""
+    if diagnosis is not None and diagnosis.method in WHOLE_TEST_METHODS and diagnosis.fitness == "lsq":
+        return diagnosis
+    return diagnose(response, method=START_METHOD, seed=seed, params=params, progress=progress)
+
+
 def analyse_fdi_test(response, max_effects: int = 2, seed: int = 0, params: ModelParams | None = None,
                      truth: dict | None = None, candidates: tuple[Candidate, ...] = CANDIDATES,
                      settings: Settings | None = None, progress=None, diagnosis=None) -> DiscrepancyReport:
-    """The loop on one FDI test: start from the diagnosis (given, or run with ``seed``)."""
+    """The loop on one FDI test: start from :func:`start_diagnosis` (the given diagnosis when it fits
+    the whole test, else the :data:`START_METHOD` one run with ``seed``)."""
     record = Record.from_response(response)
-    if diagnosis is None:
-        diagnosis = diagnose(response, seed=seed, params=params, progress=progress)
+    diagnosis = start_diagnosis(response, seed, params, progress, diagnosis)
 
     def rediagnose(model: KnobModel, x: np.ndarray) -> tuple[np.ndarray, int]:
         # the fast global method: one per refitted candidate, only when a round finds nothing on a

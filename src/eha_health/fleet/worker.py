@@ -23,7 +23,8 @@ PLUGIN_NAME = "eha-health-fleet-setup"
 
 def warm_up(params) -> float:
     """Load the numba kernels (from the on-disk cache, compiling if it is empty) with one short
-    simulation of each kind a diagnosis uses, and build the coarse detector; returns the wall time [s]."""
+    simulation of each kind a diagnosis uses, and build the start's signature tables; returns the wall
+    time [s]."""
     import numpy as np
 
     from ..identification import diagnose as _diag
@@ -34,9 +35,9 @@ def warm_up(params) -> float:
     seq = FDISequence()
     command = seq.command(seq.times(1000.0))[:50]
     simulate_batch(params, [Faults(), Faults(0.1, 0.1, 0.1)], np.asarray(command, float))
-    # the start point's detector is built on first use and cached per parameter set; building it
-    # here keeps that one-off cost out of the first task's time (no public hook for it)
-    _diag._coarse_detector(params)
+    # the start's signature tables are built on first use and cached per parameter set; building
+    # them here keeps that one-off cost out of the first task's time
+    _diag.prepare(params, seq)
     return time.perf_counter() - t0
 
 

@@ -4,13 +4,24 @@ Methods (``diagnose(..., method=...)``), each a chain of the engine's algorithms
 :class:`~.problem.Problem` (the monitor with the three fault knobs, the measured record,
 the fitness):
 
+* ``fast`` -- the default: the paper's three stage objectives (:func:`~.fitness.fdi_stages`)
+  stacked into one residual (:func:`~.fitness.fdi_stage_residual`) and solved jointly by
+  bounded least squares (one batched Jacobian, four monitor runs in parallel, per iteration)
+  from the signature tables' start (:mod:`.start`). Those segments carry no backlash impacts
+  of the sine, so that residual is smooth in the coefficients where the whole-test ``lsq``
+  cost is a saw-tooth (period ~0.0075 in K_BKL). The global guard: when the fit quality (the
+  stage cost over the model's floor plus the cost the measured noise explains) exceeds
+  :data:`GUARD_FACTOR`, the start was in a wrong basin or the model misses something, and the
+  ``hybrid`` global search runs from the same start (its estimate then finished by the same
+  joint least squares when that fit passes); ``guard`` and the warnings say so.
 * ``deterministic`` -- paper Sec. V.A (:mod:`.sequential`): K_FSJ on the ramp pressure, then
   K_GM on the step position, then K_BKL on the ramp velocity; start point given, default
   from the coarse signature detector; finished by the local refinement when the fitness is
   ``lsq``.
 * ``ga`` -- paper Sec. V.B (:mod:`.genetic`) on all three at once, then the local refinement.
 * ``hybrid`` -- paper Sec. VII's proposal: the deterministic estimate seeds the GA
-  population, then the local refinement. The default.
+  population, then the local refinement (the default before ``fast``; the discrepancy loop
+  starts from it).
 
 The ``lsq`` refinement is bounded least squares then a compass polish (:mod:`.local`); the
 ``paper`` fitness is refined by bounded Powell (the paper's fmincon hybrid function).
@@ -38,7 +49,7 @@ from ..physics.sequence import FDISequence
 from ..signals.channels import MEASURED
 from ..signals.residuals import noise_level
 from ..signals.response import Response
-from .fitness import FITNESSES, fdi_stages, make_fitness
+from .fitness import FITNESSES, fdi_stage_residual, fdi_stages, make_fitness
 from .genetic import GAOptions, genetic
 from .jacobian import jacobian
 from .knobs import FAULT_KNOBS
@@ -48,15 +59,24 @@ from .record import fdi_record
 from .residual import Residual
 from .result import FitResult
 from .sequential import sequential
-from .signatures import Detector, signatures
-from .uncertainty import (COVARIANCE_STEP_SCALE, autocorr_inflation, correlation, covariance, model_error, noise_error,
-                          twin_warnings)
+from .start import StartTable
+from .uncertainty import (COVARIANCE_STEP_SCALE, autocorr_inflation, correlation, covariance, fit_floor, model_error,
+                          noise_error, twin_warnings)
 
 #: Identification methods.
-METHODS = ("deterministic", "ga", "hybrid")
-DEFAULT_METHOD = "hybrid"
+METHODS = ("fast", "deterministic", "ga", "hybrid")
+DEFAULT_METHOD = "fast"
+#: Methods whose ``lsq`` estimate is refined on the whole-test residual (``fast`` fits the stage
+#: segments only: on the whole test it sits beside a minimum of the saw-tooth in K_BKL).
+WHOLE_TEST_METHODS = ("deterministic", "ga", "hybrid")
 #: Settings of the bounded least-squares refinement of a diagnosis.
 REFINE = {"xtol": 1e-6, "max_nfev": 60}
+#: Settings of the fast method's joint least squares (xtol is relative to the knobs' typical 0.1:
+#: it stops when a step moves the coefficients by < ~1e-5, far below the model-form error).
+FAST = {"xtol": 1e-4, "max_nfev": 30}
+#: The global guard fires when the fast fit's stage cost exceeds this many times the model's floor
+#: (``fit_floor`` of data/model_error.yaml) plus the cost the measured noise explains.
+GUARD_FACTOR = 4.0
 
 
 @dataclass
@@ -77,6 +97,10 @@ class Diagnosis:
     fitted: Response | None = None      # monitor response at the estimate
     rms: dict[str, float] = field(default_factory=dict)  # per-channel RMS fitted - measured [SI]
     seed: int = 0
+    fit_cost: float = float("nan")      # stage cost at the estimate (fitness.fdi_stage_residual) [-]
+    fit_quality: float = float("nan")   # stage cost / (model floor + noise cost) at the estimate [-]
+    guard: str = ""                     # fast method: "passed", "fired" (fell back to the global search)
+    #                                     or "unjudged" (paper fitness, or no fit_floor measured)
 
     def as_dict(self) -> dict:
         k = self.faults
@@ -84,7 +108,8 @@ class Diagnosis:
                 "correlation": np.round(self.correlation, 4).tolist(), "method": self.method,
                 "fitness": self.fitness, "cost": self.cost, "evaluations": self.evaluations,
                 "wall_time_s": self.wall_time_s, "warnings": self.warnings, "rms": self.rms,
-                "start": self.start.as_dict() if self.start else None, "seed": self.seed}
+                "start": self.start.as_dict() if self.start else None, "seed": self.seed,
+                "fit_cost": self.fit_cost, "fit_quality": self.fit_quality, "guard": self.guard}
 
 
 def refine(problem: Problem, x0, history: list) -> FitResult:
@@ -96,12 +121,19 @@ def refine(problem: Problem, x0, history: list) -> FitResult:
 
 
 def search(problem: Problem, method: str, x_start: np.ndarray, stages, seed: int, options: GAOptions,
-           history: list, progress=None) -> FitResult:
-    """The method's global search then the local refinement; returns the estimate."""
+           history: list, progress=None, stage_residual=None) -> FitResult:
+    """The method's global search then the local refinement; returns the estimate (``fast``: its
+    cost is the stage residual's)."""
     def ga_progress(gen, best):
         if progress:
             progress(f"GA generation {gen:2d}  best fitness {best:.6g}")
 
+    if method == "fast":
+        r = least_squares(Problem(problem.model, stage_residual), x_start, history=history, output=False, **FAST)
+        if progress:
+            progress("fast: joint least squares on the stage residual -> "
+                     + " ".join(f"{n}={v:.4f}" for n, v in zip(FAULT_NAMES, r.x)))
+        return r
     if method == "deterministic":
         x = sequential(problem, x_start, stages, history, progress).x
         if not isinstance(problem.objective, Residual):
@@ -119,22 +151,34 @@ def search(problem: Problem, method: str, x_start: np.ndarray, stages, seed: int
 
 
 def start_point(model: KnobModel, response: Response, sequence: FDISequence) -> Faults:
-    """The coarse detector's estimate from the response's signatures (0.5 each if they cannot be read)."""
+    """The signature tables' estimate (:mod:`.start`; 0.5 each if the signatures cannot be read)."""
     try:
-        return _coarse_detector(model.base).coarse_estimate(signatures(response, sequence))
+        return _start_table(model.base, sequence).estimate_response(response, sequence)
     except ValueError:
         return Faults(0.5, 0.5, 0.5)
 
 
 def error_bars(problem: Problem, x: np.ndarray, position_noise_m: float):
-    """``(sd, corr, sd_stat)`` at the estimate: Gauss-Newton (lsq residual, autocorrelation-inflated)
-    plus the model-form and noise errors in quadrature."""
-    r, J, _ = jacobian(problem, x, COVARIANCE_STEP_SCALE)
+    """``(sd, corr, sd_stat, out)`` at the estimate: Gauss-Newton (lsq residual, autocorrelation-inflated)
+    plus the model-form and noise errors in quadrature; ``out`` is the model output at ``x``."""
+    r, J, out = jacobian(problem, x, COVARIANCE_STEP_SCALE)
     cov_stat = covariance(J, r, autocorr_inflation(r, len(problem.objective.channels)))
     sd_stat = np.sqrt(np.maximum(np.diag(cov_stat), 0.0))
     extra = np.hypot(model_error(estimate=x), noise_error(position_noise_m))
     cov = cov_stat + np.diag(extra ** 2)
-    return np.sqrt(np.maximum(np.diag(cov), 0.0)), correlation(cov), sd_stat
+    return np.sqrt(np.maximum(np.diag(cov), 0.0)), correlation(cov), sd_stat, out
+
+
+def fit_quality(stage_residual, stage_cost: float, record) -> float:
+    """Stage cost over what a right fit leaves: the model's floor (``fit_floor``, clean runs) plus
+    the expected cost of the noise measured in each channel (second differences) [-]."""
+    floor = fit_floor()
+    if floor is None or not isinstance(stage_residual, Residual):
+        # not measured yet (the clean bench that measures it runs unguarded), or the paper's
+        # feature fitness, whose floor is not measured: the guard cannot judge
+        return float("nan")
+    sigma = {c: noise_level(v) for c, v in record.channels.items()}
+    return float(stage_cost / (floor + stage_residual.expected_noise_cost(sigma)))
 
 
 def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "lsq", seed: int = 0,
@@ -147,7 +191,7 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
     ----------
     response : Response
         Measured test (channels position, velocity, pressure, current and the command).
-    method : {'hybrid', 'deterministic', 'ga'}
+    method : {'fast', 'hybrid', 'deterministic', 'ga'}
     fitness : {'lsq', 'paper'}
     seed : int
         Seed of every random choice (GA); the same seed gives the same diagnosis.
@@ -169,14 +213,32 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
     objective = make_fitness(fitness, record, seq)
     problem = Problem(model, objective)
     start = start if start is not None else start_point(model, response, seq)
+    stage = fdi_stage_residual(objective, record, seq)
     history: list[float] = []
-    est = search(problem, method, np.array(start.as_tuple(), float), fdi_stages(objective, record, seq), seed,
-                 ga_options or GAOptions(), history, progress)
+    x_start, stages, options = np.array(start.as_tuple(), float), fdi_stages(objective, record, seq), ga_options or GAOptions()
+    est = search(problem, method, x_start, stages, seed, options, history, progress, stage)
+    guard, guard_warn = "", []
+    if method == "fast":
+        q = fit_quality(stage, est.cost, record)
+        guard = "passed" if np.isfinite(q) else "unjudged"
+        if q > GUARD_FACTOR:
+            guard = "fired"
+            guard_warn.append(f"global guard: the fast fit leaves {q:.1f}x the cost of the model's floor and the "
+                              f"measured noise (limit {GUARD_FACTOR:g}): a wrong basin, or an effect the model lacks; "
+                              f"the global search (hybrid) ran instead")
+            if progress:
+                progress(guard_warn[-1])
+            est = search(problem, "hybrid", x_start, stages, seed, options, history, progress)
+            # the global search's estimate is a start in the right basin: finish it on the stage residual
+            polished = search(problem, "fast", est.x, stages, seed, options, history, progress, stage)
+            if fit_quality(stage, polished.cost, record) <= GUARD_FACTOR:
+                polished.population, polished.population_cost = est.population, est.population_cost
+                est = polished
     x = est.x
-    cost, out = problem.cost_at(x)
     lsq = problem if isinstance(objective, Residual) else Problem(model, make_fitness("lsq", record, seq))
-    sd, corr, sd_stat = error_bars(lsq, x, noise_level(response.position))
-    warn = twin_warnings(corr, x, est.population, est.population_cost, cost)
+    sd, corr, sd_stat, out = error_bars(lsq, x, noise_level(response.position))
+    cost = float(objective.cost(out))
+    warn = guard_warn + twin_warnings(corr, x, est.population, est.population_cost, cost)
     if np.any(x >= model.upper - 1e-6):
         warn.append("an estimate sits on the upper search bound: damage beyond the modelled range")
     fitted = response_from_rows(record.t, out, {"label": "monitor fit"})
@@ -184,16 +246,25 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
     return Diagnosis(faults=Faults(*(float(v) for v in x)), std=dict(zip(FAULT_NAMES, map(float, sd))),
                      std_stat=dict(zip(FAULT_NAMES, map(float, sd_stat))), correlation=corr, method=method,
                      fitness=fitness, cost=cost, evaluations=model.runs, wall_time_s=time.perf_counter() - t0,
-                     history=history, warnings=warn, start=start, fitted=fitted, rms=rms, seed=int(seed))
+                     history=history, warnings=warn, start=start, fitted=fitted, rms=rms, seed=int(seed),
+                     fit_cost=stage.cost(out), fit_quality=fit_quality(stage, stage.cost(out), record), guard=guard)
 
 
-_DETECTORS: dict = {}
+_TABLES: dict = {}
 
 
-def _coarse_detector(params: ModelParams):
-    """Coarse detector built on the monitor model (cached per parameter set)."""
-    key = pack(params).tobytes()
-    if key not in _DETECTORS:
-        _DETECTORS.clear()
-        _DETECTORS[key] = Detector.build(params=params, kind="monitor")
-    return _DETECTORS[key]
+def prepare(params: ModelParams | None = None, sequence: FDISequence | None = None) -> None:
+    """Build what diagnoses with ``params`` cache (the start's signature tables, one batch of monitor
+    runs), so that a long-lived process (a fleet worker, the monitor node) pays it before its first test."""
+    _start_table(params if params is not None else load("monitor"), sequence or FDISequence())
+
+
+def _start_table(params: ModelParams, sequence: FDISequence) -> StartTable:
+    """Signature tables of the monitor model (cached per parameter set and sequence, the last few:
+    the discrepancy loop alternates between the shipped monitor and a candidate's)."""
+    key = (pack(params).tobytes(), repr(sequence))
+    if key not in _TABLES:
+        while len(_TABLES) >= 4:
+            _TABLES.pop(next(iter(_TABLES)))
+        _TABLES[key] = StartTable.build(params, sequence)
+    return _TABLES[key]

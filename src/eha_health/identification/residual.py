@@ -86,6 +86,14 @@ class Residual:
             d = np.add.reduceat(d, self._starts, axis=1) * self._block[None]
         return np.einsum("bnc,bnc->b", d, d)
 
+    def expected_noise_cost(self, sigma: dict[str, float]) -> float:
+        """Expected cost of white measurement noise of standard deviation ``sigma[c]`` [SI] per channel:
+        sum over samples of (w_c f_c sigma_c)^2, divided by the block length when blocks average it."""
+        W2 = np.broadcast_to(self._W, (self.n, len(self.channels))) ** 2
+        s2 = np.array([sigma.get(c, 0.0) ** 2 for c in self.channels])
+        m = 1.0 if self._starts is None else self.n / len(self._starts)
+        return float(np.sum(W2 * s2) / m)
+
     def rms(self, out: np.ndarray) -> dict[str, float]:
         """Unweighted RMS of each channel [SI] on the mask."""
         o = out if self._whole else out[self.mask]

@@ -104,6 +104,10 @@ def _error_file(path: str | None) -> dict:
     if any(out["noise"]) and not (isinstance(ref, (int, float)) and ref > 0):
         raise ValueError(f"model error file {where}: noise_error_sd needs noise_reference_m > 0 [m]")
     out["noise_reference_m"] = float(ref) if ref else 0.0
+    floor = data.get("fit_floor")
+    if floor is not None and not (isinstance(floor, (int, float)) and floor > 0):
+        raise ValueError(f"model error file {where}: fit_floor must be a number > 0, got {floor!r}")
+    out["fit_floor"] = float(floor) if floor is not None else None
     return out
 
 
@@ -135,6 +139,12 @@ def noise_error(position_noise_m: float, path: str | Path | None = None) -> np.n
     if f["noise_reference_m"] <= 0:
         return np.zeros(3)
     return np.array(f["noise"]) * (max(float(position_noise_m), 0.0) / f["noise_reference_m"])
+
+
+def fit_floor(path: str | Path | None = None) -> float | None:
+    """The model's floor of the stage cost (:func:`~.fitness.fdi_stage_residual`): the largest left
+    by a diagnosis of the clean reference runs in data/model_error.yaml (None if not measured)."""
+    return _error_file(str(path) if path else None)["fit_floor"]
 
 
 def twin_warnings(corr: np.ndarray, x: np.ndarray, pop=None, pop_cost=None, cost=None) -> list[str]:
