@@ -19,6 +19,7 @@ from ..io.bagrun import HISTORY_META, read_run
 from ..io.mcaplog import bag_metadata
 from ..physics.faults import FAULT_NAMES
 from ..signals.response import Response
+from ..signals.table import csv_rows
 
 #: Columns of a fleet manifest (``truth_*`` and ``noise_seed`` only for simulated fleets).
 MANIFEST_COLUMNS = ("actuator_id", "time_h", "usage", "usage_unit", "path",
@@ -70,34 +71,23 @@ def read_manifest(path: str | Path) -> list[Recording]:
     if not path.is_file():
         raise FleetError(f"{path}: no such manifest")
     root = path.parent.resolve()
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        cols = [c.strip() for c in reader.fieldnames or []]
-        missing = [c for c in MANIFEST_REQUIRED if c not in cols]
-        if missing:
-            raise FleetError(f"{path}: missing column(s) {', '.join(missing)} (a manifest needs "
-                             f"{', '.join(MANIFEST_REQUIRED)})")
-        reader.fieldnames = cols
-        out = []
-        for line, row in enumerate(reader, start=2):
-            where = f"{path.name} line {line}"
-            if None in row:
-                raise FleetError(f"{where}: more values than columns")
-            row = {k: (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
-            if not row["actuator_id"]:
-                raise FleetError(f"{where}: empty actuator_id")
-            if not row["path"]:
-                raise FleetError(f"{where}: empty path")
-            rel = Path(row["path"])
-            full = (root / rel).resolve()
-            if rel.is_absolute() or not full.is_relative_to(root):
-                raise FleetError(f"{where}: path {row['path']!r} leaves the manifest's folder {root}")
-            truth = None
-            if all(row.get(f"truth_k_{n[2:]}") not in (None, "") for n in FAULT_NAMES):
-                truth = {n: _number(row[f"truth_k_{n[2:]}"], where, f"truth_k_{n[2:]}") for n in FAULT_NAMES}
-            out.append(Recording(full, row["actuator_id"], _number(row["time_h"], where, "time_h"),
-                                 _number(row.get("usage"), where, "usage", optional=True),
-                                 row.get("usage_unit") or None, truth, where))
+    out = []
+    for where, row in csv_rows(path, MANIFEST_REQUIRED, FleetError,
+                               need=f"a manifest needs {', '.join(MANIFEST_REQUIRED)}"):
+        if not row["actuator_id"]:
+            raise FleetError(f"{where}: empty actuator_id")
+        if not row["path"]:
+            raise FleetError(f"{where}: empty path")
+        rel = Path(row["path"])
+        full = (root / rel).resolve()
+        if rel.is_absolute() or not full.is_relative_to(root):
+            raise FleetError(f"{where}: path {row['path']!r} leaves the manifest's folder {root}")
+        truth = None
+        if all(row.get(f"truth_k_{n[2:]}") not in (None, "") for n in FAULT_NAMES):
+            truth = {n: _number(row[f"truth_k_{n[2:]}"], where, f"truth_k_{n[2:]}") for n in FAULT_NAMES}
+        out.append(Recording(full, row["actuator_id"], _number(row["time_h"], where, "time_h"),
+                             _number(row.get("usage"), where, "usage", optional=True),
+                             row.get("usage_unit") or None, truth, where))
     if not out:
         raise FleetError(f"{path}: the manifest lists no recordings")
     return out

@@ -27,7 +27,6 @@ killed mid-append leaves the previous state (SQLite's atomic commit), never a pa
 """
 from __future__ import annotations
 
-import csv
 import datetime as _dt
 import hashlib
 import json
@@ -41,6 +40,7 @@ import numpy as np
 
 from ..physics.faults import FAULT_KEYS, FAULT_UPPER
 from ..signals.channels import MEASURED
+from ..signals.table import csv_rows
 from .config import PrognosticsError, Settings, load_settings
 
 SCHEMA_VERSION = 1
@@ -231,29 +231,18 @@ def read_history_csv(path: str | Path, settings: Settings | None = None) -> list
     path = Path(path)
     if not path.is_file():
         raise PrognosticsError(f"{path}: no such file")
-    with path.open(newline="") as f:
-        reader = csv.DictReader(f)
-        cols = [c.strip() for c in (reader.fieldnames or [])]
-        missing = [c for c in ("actuator_id", "time_h", *K_COLUMNS) if c not in cols]
-        if missing:
-            raise PrognosticsError(f"{path}: missing column(s) {', '.join(missing)}")
-        reader.fieldnames = cols
-        recs = []
-        for i, row in enumerate(reader, start=2):
-            where = f"{path.name} line {i}"
-            if None in row:
-                raise PrognosticsError(f"{where}: more values than columns")
-            row = {k: (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
-            k = tuple(_float(row[f"k_{n}"], where, f"k_{n}") for n in FAULT_KEYS)
-            std = tuple(_float(row[f"std_{n}"], where, f"std_{n}") if row.get(f"std_{n}") not in (None, "")
-                        else None for n in FAULT_KEYS)
-            usage = _float(row["usage"], where, "usage") if row.get("usage") not in (None, "") else None
-            r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k,
-                             tuple(0.0 if v is None else v for v in std), usage=usage, method="import")
-            _check_record(r, where)
-            r.std = std
-            r.source_path = str(path)
-            recs.append((where, r))
+    recs = []
+    for where, row in csv_rows(path, ("actuator_id", "time_h", *K_COLUMNS), PrognosticsError):
+        k = tuple(_float(row[f"k_{n}"], where, f"k_{n}") for n in FAULT_KEYS)
+        std = tuple(_float(row[f"std_{n}"], where, f"std_{n}") if row.get(f"std_{n}") not in (None, "")
+                    else None for n in FAULT_KEYS)
+        usage = _float(row["usage"], where, "usage") if row.get("usage") not in (None, "") else None
+        r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k,
+                         tuple(0.0 if v is None else v for v in std), usage=usage, method="import")
+        _check_record(r, where)
+        r.std = std
+        r.source_path = str(path)
+        recs.append((where, r))
     if not recs:
         raise PrognosticsError(f"{path}: the history is empty (no rows)")
     _check_order([(w, r) for w, r in recs])

@@ -1,0 +1,39 @@
+"""signals.table.csv_rows: the one reader of user-written CSV tables (manifest, HISTORY.csv)."""
+import pytest
+
+from eha_health.signals.table import csv_rows
+
+
+class TableError(ValueError):
+    pass
+
+
+def test_rows_are_stripped_and_located_by_line(tmp_path):
+    p = tmp_path / "t.csv"
+    p.write_text(" a , b \n 1 , x \n\n2,  y\n")
+    rows = list(csv_rows(p, ("a", "b"), TableError))
+    # csv skips the blank line, but the line numbers stay those of the file
+    assert rows == [("t.csv line 2", {"a": "1", "b": "x"}), ("t.csv line 4", {"a": "2", "b": "y"})]
+
+
+def test_missing_column_is_named_with_what_the_file_needs(tmp_path):
+    p = tmp_path / "t.csv"
+    p.write_text("a,c\n1,2\n")
+    with pytest.raises(TableError, match=r"t\.csv: missing column\(s\) b \(a table needs a, b\)$"):
+        list(csv_rows(p, ("a", "b"), TableError, need="a table needs a, b"))
+
+
+def test_extra_values_name_the_line_and_rows_before_it_were_read(tmp_path):
+    p = tmp_path / "t.csv"
+    p.write_text("a,b\n1,2\n3,4,5\n")
+    got = []
+    with pytest.raises(TableError, match=r"^t\.csv line 3: more values than columns$"):
+        for where, row in csv_rows(p, ("a", "b"), TableError):
+            got.append(row)
+    assert got == [{"a": "1", "b": "2"}]
+
+
+def test_short_row_gives_none_for_the_missing_cells(tmp_path):
+    p = tmp_path / "t.csv"
+    p.write_text("a,b\n1\n")
+    assert list(csv_rows(p, ("a", "b"), TableError)) == [("t.csv line 2", {"a": "1", "b": None})]
