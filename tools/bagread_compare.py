@@ -63,22 +63,55 @@ def _compare(old, new, path) -> list[str]:
     return out
 
 
+class _Mangle:
+    """A BagWriter that changes a few of the messages written through it: a flipped bit after the
+    encapsulation header, bytes cut off or appended (each message with probability 1/``every``)."""
+
+    def __init__(self, writer, rng: random.Random, every: int):
+        from mcap_ros2._dynamic import serialize_dynamic
+
+        from eha_health.io.mcaplog import schema_text
+        self.w, self.rng, self.every = writer, rng, every
+        self.encode = lambda typ: serialize_dynamic(typ, schema_text(typ))[typ]
+
+    def add_metadata(self, *a):
+        self.w.add_metadata(*a)
+
+    def write(self, topic, typ, msg, ns):
+        from eha_health.io.mcaplog import _plain
+        data = bytearray(self.encode(typ)(_plain(msg)))
+        if self.rng.randrange(self.every) == 0:
+            how = self.rng.choice(["flip", "cut", "extend"])
+            if how == "flip":
+                data[self.rng.randrange(2, len(data))] ^= 1 << self.rng.randrange(8)
+            elif how == "cut":
+                del data[self.rng.randrange(4, len(data)):]
+            else:
+                data += bytes(self.rng.randrange(256) for _ in range(self.rng.randint(1, 9)))
+        self.w.write_raw(topic, typ, bytes(data), ns)
+
+
 def _mutations(old, new, n: int, seed: int, tmp: Path) -> tuple[int, list[str]]:
     from eha_health.io.bagrun import write_run
     from eha_health.io.mcaplog import BagWriter
     from eha_health.signals.response import Response
     rng = random.Random(seed)
-    t = np.arange(300) * 1e-3
+    t = np.arange(701) * 5e-3  # the 3.5 s FDI test at 200 Hz: a whole window, read fast enough
     r = Response(t=t, command=1e-3 * np.sin(20 * t), position=1e-3 * np.sin(20 * t - 0.1), velocity=np.cos(t),
                  pressure=1e5 * np.cos(3 * t), current=0.01 * np.sin(t), spool=np.zeros(t.size))
+    truth = {"k_gm": 0.1, "k_fsj": 0.2, "k_bkl": 0.3}
     base = tmp / "base.mcap"
     with BagWriter(base, chunk_size=4096) as w:
-        write_run(w, r, test_id=3, start_ns=10**9, truth={"k_gm": 0.1, "k_fsj": 0.2, "k_bkl": 0.3})
+        write_run(w, r, test_id=3, start_ns=10**9, truth=truth)
     data0, diffs = base.read_bytes(), []
     for _ in range(n):
         d = bytearray(data0)
-        kind = rng.choice(["cut", "flip", "flip", "length"])
-        if kind == "cut":
+        kind = rng.choice(["cut", "flip", "flip", "length", "payload", "payload"])
+        if kind == "payload":  # messages changed before they are written: intact file, odd CDR
+            with BagWriter(tmp / "case.mcap", chunk_size=4096) as w:
+                write_run(_Mangle(w, rng, 4000), r, test_id=3, start_ns=10**9, truth=truth)
+            d = bytearray((tmp / "case.mcap").read_bytes())
+        elif kind == "cut":
             d = d[:rng.randrange(len(d))]
         elif kind == "flip":
             for _ in range(rng.randint(1, 4)):
