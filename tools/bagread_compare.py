@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib
+import io
 import random
 import statistics
 import struct
@@ -33,7 +34,7 @@ def _old_package(rev: str, into: Path):
     """The revision's eha_health, importable as eha_health_old (its imports are relative)."""
     tar = subprocess.run(["git", "-C", str(ROOT), "archive", rev, "src/eha_health"],
                          check=True, capture_output=True).stdout
-    with tarfile.open(fileobj=__import__("io").BytesIO(tar)) as t:
+    with tarfile.open(fileobj=io.BytesIO(tar)) as t:
         t.extractall(into, filter="data")
     (into / "src" / "eha_health").rename(into / "eha_health_old")
     sys.path.insert(0, str(into))
