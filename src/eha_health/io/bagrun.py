@@ -19,7 +19,8 @@ from msg_bridge import convert as cv
 from ..physics.faults import FAULT_NAMES
 from ..physics.sequence import FDISequence
 from ..signals.response import Response
-from .mcaplog import Bag, BagError, read_bag
+from . import cdrbatch
+from .mcaplog import Bag, BagError, Scan, read_bag, scan_bag, schema_text
 from .window import NS, Samples, WindowError, assemble
 
 SIGNALS = (C.COMMAND, C.JOINT_STATE, C.PRESSURE, C.CURRENT)
@@ -90,12 +91,69 @@ def resolve_topics(types: dict[str, str], path, namespace: str | None = None) ->
     return out
 
 
-def _channels(bag: Bag, names: dict[str, str], record: bool = False) -> dict[str, Samples]:
+#: Contract topic -> (channel, message field, required) as the readers of msg_bridge.convert take them
+#: (field[0]); a rig record's joint state has velocity and the load force (effort) optional.
+_FIELDS = {C.COMMAND.name: (("command", "position", True),),
+           C.JOINT_STATE.name: (("position", "position", True), ("velocity", "velocity", True)),
+           C.PRESSURE.name: (("pressure", "fluid_pressure", True),),
+           C.CURRENT.name: (("current", "effort", True),)}
+_RECORD_JOINT_STATE = (("position", "position", True), ("velocity", "velocity", False), ("load", "effort", False))
+
+
+def _same_bits(a, b) -> bool:
+    a, b = np.asarray(a, float).reshape(-1), np.asarray(b, float).reshape(-1)
+    return a.shape == b.shape and bool((a.view(np.int64) == b.view(np.int64)).all())
+
+
+def _batch_samples(scan: Scan, topic: str, contract: str, record: bool) -> dict[str, Samples] | None:
+    """The samples of a topic decoded at once (:func:`cdrbatch.columns`), exactly what
+    :func:`_channels` makes of the decoded messages; None where that path is needed (other
+    schema, mixed layouts, a message that does not decode or a field it needs empty)."""
+    found = scan.channel(topic)
+    typ = scan.bag.types[topic]
+    if found is None or found[1] is None:
+        return None
+    ch, schema = found
+    try:
+        if (ch.message_encoding != "cdr" or schema.encoding != "ros2msg" or schema.name != typ
+                or schema.data != schema_text(typ).encode()):
+            return None
+    except BagError:  # no definition installed for the type: decode message by message
+        return None
+    msgs = scan.bag.messages[topic]
+    cols = cdrbatch.columns(typ, msgs)
+    if cols is None:
+        return None
+    fields = _RECORD_JOINT_STATE if record and contract == C.JOINT_STATE.name else _FIELDS[contract]
+    try:  # the first and last message through mcap_ros2: they decode, to the same numbers
+        decoder = scan.decoder(topic)
+        for i in (0, len(msgs) - 1):
+            msg = decoder(msgs[i])
+            if cv.stamp_ns(msg.header.stamp) != cols.stamp_ns[i] or not all(
+                    _same_bits(getattr(msg, f), cols.values[f][i]) for _, f, _ in fields):
+                return None
+    except Exception:  # the message-by-message path raises the documented error
+        return None
+    out = {}
+    for chan, f, required in fields:
+        v = cols.values[f]
+        if v.shape[1] == 0 and required:
+            return None
+        out[chan] = Samples(cols.stamp_ns.copy(), v[:, 0].copy() if v.shape[1] else np.full(len(v), np.nan))
+    return out
+
+
+def _channels(bag: Bag, names: dict[str, str], record: bool = False,
+              done: dict[str, dict[str, Samples]] | None = None) -> dict[str, Samples]:
     """Samples per channel; ``record``: a rig record (absent topics skipped, the joint state read
-    leniently: velocity and the load force in effort optional)."""
-    pairs: dict[str, list] = {}
+    leniently: velocity and the load force in effort optional). ``done``: contract topic -> its
+    samples already decoded in a batch (:func:`_batch_samples`)."""
+    pairs: dict[str, list | Samples] = {}
     for topic in SIGNALS:
         if topic.name not in names:
+            continue
+        if done and topic.name in done:
+            pairs.update(done[topic.name])
             continue
         reader, chans = cv.READERS[topic.name], C.CHANNELS[topic.name]
         if record and topic is C.JOINT_STATE:
@@ -109,7 +167,7 @@ def _channels(bag: Bag, names: dict[str, str], record: bool = False) -> dict[str
                 raise WindowError(f"{names[topic.name]} message {i}: {e}") from None
             for ch, v in zip(chans, vals[1:]):
                 pairs[ch].append((vals[0], v))
-    return {c: Samples.of(p) for c, p in pairs.items()}
+    return {c: p if isinstance(p, Samples) else Samples.of(p) for c, p in pairs.items()}
 
 
 def complete_windows(bag: Bag, topic: str | None) -> dict[int, dict]:
@@ -135,16 +193,19 @@ def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence
     channels it lacks come out all NaN, a load force becomes ``Response.load``.
     Raises ``BagError`` / ``WindowError`` (both ``ValueError``) naming the problem.
     """
-    names = resolve_topics(read_bag(path, topics=[]).types, path, namespace)
+    scan = scan_bag(path)  # one pass; topics decoded below (all at once where their layout allows)
+    names = resolve_topics(scan.bag.types, path, namespace)
     needed = C.RECORD_INPUTS if record else SIGNALS
     missing = [t.name for t in needed if t.name not in names]
     if missing:
         raise BagError(f"{path}: missing topic {missing[0]} (the contract of docs/interfaces.md needs "
                        f"{', '.join(t.name for t in needed)})")
-    bag = read_bag(path, topics=list(names.values()))
-    bag.require(*(names[t.name] for t in needed))
+    done = {t.name: b for t in SIGNALS if t.name in names
+            for b in [_batch_samples(scan, names[t.name], t.name, record)] if b is not None}
+    bag = scan.decode(t for c, t in names.items() if c not in done)
+    scan.bag.require(*(names[t.name] for t in needed))
     notes = [f"{path}: {bag.truncated}; using the complete part"] if bag.truncated else []
-    chans = _channels(bag, names, record)
+    chans = _channels(bag, names, record, done)
     wins = complete_windows(bag, names.get(C.TEST_WINDOW.name))
     if test_id is not None and test_id not in wins:
         raise WindowError(f"{path}: no complete test window {test_id} (complete: {sorted(wins) or 'none'})")

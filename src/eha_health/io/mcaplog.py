@@ -49,10 +49,11 @@ from mcap_ros2.decoder import DecoderFactory
 # mcap.Writer options we need); written against mcap-ros2-support 0.6.0, covered by the tests
 from mcap_ros2._dynamic import serialize_dynamic
 
-__all__ = ["Bag", "BagError", "BagWriter", "bag_metadata", "read_bag", "schema_text"]
+__all__ = ["Bag", "BagError", "BagWriter", "Scan", "bag_metadata", "read_bag", "scan_bag", "schema_text"]
 
 _MAGIC = b"\x89MCAP0\r\n"
 _RECORD = struct.Struct("<BQ")  # opcode, body length
+_MESSAGE = struct.Struct("<HIQQ")  # message record: channel id, sequence, log time, publish time; then data
 _FOOTER_LEN = _RECORD.size + 20  # footer record: opcode, length, two u64 and the summary CRC
 _SEPARATOR = "=" * 80
 _INNER = {Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel, Opcode.MESSAGE: Message}  # records read from chunks
@@ -476,8 +477,13 @@ def _opname(op: int) -> str:
 
 
 class _Reader:
-    def __init__(self, path: Path, f, size: int, topics: set[str] | None, raw: bool):
+    def __init__(self, path: Path, f, size: int, topics: set[str] | None, raw: bool, keep: bool = False):
         self.path, self.f, self.size, self.topics, self.raw = path, f, size, topics, raw
+        # keep: also note each kept message's channel and place in the file, so that
+        # Scan.decode can decode later exactly as a decoding read would have
+        self.keep = keep
+        self.chans: dict[str, list[int]] = {}
+        self.order: dict[str, list[int]] = {}
         self.pos = 0
         self.crc = 0
         self.schemas: dict[int, Schema] = {}
@@ -664,7 +670,14 @@ class _Reader:
         schemas, channels, out = set(self.schemas), set(self.channels), []
         for op, body in raw:
             try:
-                rec = _parse(_INNER[op], body, *([len(body)] if op == Opcode.MESSAGE else []))
+                if op == Opcode.MESSAGE and len(body) >= _MESSAGE.size:
+                    # what Message.read makes of it, without a stream per record (the reader's
+                    # hot loop); shorter bodies go through _parse for its error message
+                    cid, seq, log_time, pub_time = _MESSAGE.unpack_from(body)
+                    rec = Message(channel_id=cid, log_time=log_time, data=body[_MESSAGE.size:],
+                                  publish_time=pub_time, sequence=seq)
+                else:
+                    rec = _parse(_INNER[op], body, *([len(body)] if op == Opcode.MESSAGE else []))
             except Exception as e:
                 raise _Damage(f"unreadable {_opname(op)} record ({type(e).__name__}: {e})") from None
             if isinstance(rec, Schema):
@@ -692,6 +705,9 @@ class _Reader:
             if self.topics is None or rec.topic in self.topics:
                 self.messages.setdefault(rec.topic, [])
                 self.times.setdefault(rec.topic, [])
+                if self.keep:
+                    self.chans.setdefault(rec.topic, [])
+                    self.order.setdefault(rec.topic, [])
         else:
             self.n += 1
             ch = self.channels[rec.channel_id]
@@ -700,10 +716,14 @@ class _Reader:
             if self.raw:
                 self.messages[ch.topic].append(rec.data)
                 self.times[ch.topic].append(rec.log_time)
+                if self.keep:
+                    self.chans[ch.topic].append(ch.id)
+                    self.order[ch.topic].append(self.n)
             else:
-                self.decode(ch, rec)
+                self.decode(ch, rec.data, rec.log_time, self.messages[ch.topic], self.times[ch.topic])
 
-    def decode(self, ch: Channel, msg: Message) -> None:
+    def decoder(self, ch: Channel) -> Callable[[bytes], Any]:
+        """mcap_ros2's decoder of a channel's messages (BagError if its schema is unusable)."""
         decoder = self.decoders.get(ch.id)
         typ = self.types[ch.topic]
         if decoder is None:
@@ -718,13 +738,17 @@ class _Reader:
                 raise BagError(f"{self.path}: {ch.topic}: cannot decode {ch.message_encoding!r} "
                                f"messages with {enc!r} (need 'cdr' and 'ros2msg')")
             self.decoders[ch.id] = decoder
-        out = self.messages[ch.topic]
+        return decoder
+
+    def decode(self, ch: Channel, data: bytes, log_time: int, out: list, times: list) -> None:
+        """Decode one message of ``ch`` onto ``out`` (its log time onto ``times``)."""
+        decoder = self.decoder(ch)
         try:
-            out.append(decoder(msg.data))
+            out.append(decoder(data))
         except Exception as e:
-            raise BagError(f"{self.path}: {ch.topic}: message {len(out)} does not decode as {typ} "
-                           f"({type(e).__name__}: {e})") from None
-        self.times[ch.topic].append(msg.log_time)
+            raise BagError(f"{self.path}: {ch.topic}: message {len(out)} does not decode as "
+                           f"{self.types[ch.topic]} ({type(e).__name__}: {e})") from None
+        times.append(log_time)
 
 
 def bag_metadata(path) -> dict[str, dict[str, str]]:
@@ -760,9 +784,12 @@ def read_bag(path, topics: Iterable[str] | None = None, *, raw: bool = False) ->
         Missing, empty or non-MCAP file; damage before any readable message; a
         complete file with no messages; a message that does not decode.
     """
-    path = Path(path)
     if isinstance(topics, str):
         topics = [topics]
+    return _read(Path(path), None if topics is None else set(topics), raw)[1]
+
+
+def _read(path: Path, topics: set[str] | None, raw: bool, keep: bool = False) -> tuple[_Reader, Bag]:
     try:
         size = path.stat().st_size
         if path.is_dir():
@@ -776,4 +803,53 @@ def read_bag(path, topics: Iterable[str] | None = None, *, raw: bool = False) ->
         f.close()
         raise BagError(f"{path}: empty file")
     with f:
-        return _Reader(path, f, size, None if topics is None else set(topics), raw).run()
+        reader = _Reader(path, f, size, topics, raw, keep)
+        return reader, reader.run()
+
+
+class Scan:
+    """One pass over an MCAP log: every topic's CDR bytes, decoded when asked.
+
+    ``scan_bag(p).bag`` is ``read_bag(p, raw=True)``; ``scan.decode(topics)`` is what
+    ``read_bag(p, topics)`` would have returned, raising the same error for the same first
+    bad message, without a second pass over the file.
+    """
+
+    def __init__(self, reader: _Reader, bag: Bag):
+        self._r, self.bag = reader, bag
+
+    def channel(self, topic: str) -> tuple[Channel, Schema | None] | None:
+        """The one channel (and its schema) all of ``topic``'s messages came on; None if several."""
+        ids = self._r.chans.get(topic)
+        if not ids or ids.count(ids[0]) != len(ids):
+            return None
+        ch = self._r.channels[ids[0]]
+        return ch, self._r.schemas.get(ch.schema_id)
+
+    def decoder(self, topic: str) -> Callable[[bytes], Any]:
+        """mcap_ros2's decoder of ``topic`` (which :meth:`channel` found on one channel)."""
+        found = self.channel(topic)
+        if found is None:
+            raise BagError(f"{self.bag.path}: {topic}: messages on several channels")
+        return self._r.decoder(found[0])
+
+    def decode(self, topics: Iterable[str]) -> Bag:
+        """The bag with ``topics`` decoded, in file order across topics (so the first message that
+        does not decode raises as in :func:`read_bag`); other topics are left out."""
+        r, bag = self._r, self.bag
+        want = [t for t in dict.fromkeys(topics) if t in bag.messages]
+        messages: dict[str, list] = {t: [] for t in want}
+        times: dict[str, list[int]] = {t: [] for t in want}
+        for _, t, k in sorted((i, t, k) for t in want for k, i in enumerate(r.order[t])):
+            r.decode(r.channels[r.chans[t][k]], bag.messages[t][k], int(bag.log_times[t][k]),
+                     messages[t], times[t])
+        return Bag(bag.path, messages, {t: np.asarray(v, dtype=np.int64) for t, v in times.items()},
+                   bag.types, bag.metadata, bag.truncated)
+
+
+def scan_bag(path) -> Scan:
+    """Read an MCAP log once, keeping every message's CDR bytes (see :class:`Scan`).
+
+    Raises the :class:`BagError` that ``read_bag(path, raw=True)`` raises.
+    """
+    return Scan(*_read(Path(path), None, raw=True, keep=True))
