@@ -223,7 +223,9 @@ class MonitorNode(Node):
                 return
             truth = {n: parameter_value_to_python(v) for n, v in zip(names, vals)}
             truth["effects"] = ",".join(e for e in (truth["effects"] or []) if e)
-            self.windows.window(tid).truth = truth
+            w = self.windows.windows.get(tid)
+            if w is not None:   # a late answer must not re-open a window already reported
+                w.truth = truth
             if self.log is not None:
                 self.log.add_metadata(f"truth/test_{tid}", {k: str(v) for k, v in truth.items()})
         fut.add_done_callback(done)
