@@ -11,6 +11,7 @@ import ctypes
 import ctypes.util
 import gc
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -40,9 +41,10 @@ class _Mallinfo2(ctypes.Structure):
 
 def _heap_mb() -> float:
     """Bytes the C heap has handed out and not had back [MB] (glibc ``mallinfo2``: in-use arena
-    blocks + mmapped blocks; NaN elsewhere). Unlike RSS it excludes memory malloc keeps after a
-    ``free`` (fragmented arenas it does not return to the OS): growth here is held data, growth
-    of RSS alone is the allocator."""
+    blocks + mmapped blocks; NaN elsewhere): numpy arrays, message buffers, native libraries.
+    Unlike RSS it excludes memory malloc keeps after a ``free`` (fragmented arenas it does not
+    return to the OS): growth here is held data, growth of RSS alone is the allocator. Python's
+    small objects (<= 512 B) live in pymalloc's own arenas, outside it: see ``py_blocks``."""
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c"))
         libc.mallinfo2.restype = _Mallinfo2
@@ -67,13 +69,15 @@ def soak(tests: int = 300, warmup: int = 20, faults: Faults = Faults(0.4, 0.6, 0
                 wall = time.perf_counter() - t0
                 gc.collect()   # memory held, not garbage waiting for the collector
                 rss, threads = _proc_status()
-                heap = _heap_mb()
+                heap, blocks = _heap_mb(), sys.getallocatedblocks()
                 d = r["diagnosis"]
-                rows.append({"test": i + 1, "ok": d is not None, "level": r["level"], "rss_mb": rss, "heap_mb": heap, "threads": threads,
+                rows.append({"test": i + 1, "ok": d is not None, "level": r["level"], "rss_mb": rss, "heap_mb": heap, "py_blocks": blocks,
+                             "threads": threads,
                              "diagnosis_s": d.wall_time_s if d else float("nan"), "wall_s": wall,
                              "k": list(d.faults.as_tuple()) if d else None})
                 if progress:
-                    progress(f"soak test {i + 1}/{tests}: {r['level']}, RSS {rss:.1f} MB, heap {heap:.1f} MB, {threads} threads, "
+                    progress(f"soak test {i + 1}/{tests}: {r['level']}, RSS {rss:.1f} MB, heap {heap:.1f} MB, "
+                             f"{blocks} Python blocks, {threads} threads, "
                              f"diagnosis {rows[-1]['diagnosis_s']:.2f} s, test {wall:.2f} s")
         except KeyboardInterrupt:   # Ctrl-C: summarise the tests run so far
             if len(rows) <= warmup:
@@ -89,6 +93,7 @@ def summarise(rows: list[dict], warmup: int, results: int, log_mb: float, planne
     after = rows[warmup:]
     rss = np.array([r["rss_mb"] for r in after])
     heap = np.array([r.get("heap_mb", np.nan) for r in after])
+    blocks = np.array([r.get("py_blocks", np.nan) for r in after], float)
     thr = np.array([r["threads"] for r in after])
     diag = np.array([r["diagnosis_s"] for r in after])
     tenth = max(1, len(after) // 10)
@@ -99,6 +104,7 @@ def summarise(rows: list[dict], warmup: int, results: int, log_mb: float, planne
             "rss_growth_pct": float(100 * (rss[-1] - rss[0]) / rss[0]),
             "heap_after_warmup_mb": float(heap[0]), "heap_end_mb": float(heap[-1]),
             "rss_slope_last_half_mb": _slope(rss), "heap_slope_last_half_mb": _slope(heap),
+            "py_blocks_after_warmup": float(blocks[0]), "py_blocks_end": float(blocks[-1]),
             "threads_min": int(thr.min()), "threads_max": int(thr.max()),
             "diagnosis_first_tenth_s": float(first), "diagnosis_last_tenth_s": float(last),
             "diagnosis_drift_ratio": float(last / first), "log_mb": log_mb, "rows": rows}
@@ -122,6 +128,8 @@ def format_soak(res: dict) -> str:
         f"  trend, last half:  RSS {res['rss_slope_last_half_mb']:+.3f} MB/test, heap in use "
         f"{res['heap_slope_last_half_mb']:+.3f} MB/test (heap {res['heap_after_warmup_mb']:.1f} -> "
         f"{res['heap_end_mb']:.1f} MB: what malloc has handed out, not what it keeps)",
+        f"  Python objects:    {res.get('py_blocks_after_warmup', float('nan')):.0f} -> "
+        f"{res.get('py_blocks_end', float('nan')):.0f} pymalloc blocks in use (sys.getallocatedblocks)",
         f"  threads:           {res['threads_min']} .. {res['threads_max']}",
         f"  diagnosis time:    median {res['diagnosis_first_tenth_s']:.2f} s (first tenth) -> "
         f"{res['diagnosis_last_tenth_s']:.2f} s (last tenth), ratio {res['diagnosis_drift_ratio']:.2f}",
