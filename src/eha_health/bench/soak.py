@@ -64,21 +64,22 @@ def soak(tests: int = 300, warmup: int = 20, faults: Faults = Faults(0.4, 0.6, 0
             Graph(faults=faults, seed=seed, log_path=Path(tmp) / "soak.mcap") as g:
         try:
             for i in range(tests):
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 r = g.run_test()
-                wall = time.perf_counter() - t0
+                wall, cpu = time.perf_counter() - t0, time.process_time() - c0
                 gc.collect()   # memory held, not garbage waiting for the collector
                 rss, threads = _proc_status()
                 heap, blocks = _heap_mb(), sys.getallocatedblocks()
                 d = r["diagnosis"]
                 rows.append({"test": i + 1, "ok": d is not None, "level": r["level"], "rss_mb": rss, "heap_mb": heap, "py_blocks": blocks,
                              "threads": threads,
-                             "diagnosis_s": d.wall_time_s if d else float("nan"), "wall_s": wall,
+                             "diagnosis_s": d.wall_time_s if d else float("nan"), "wall_s": wall, "cpu_s": cpu,
                              "k": list(d.faults.as_tuple()) if d else None})
                 if progress:
                     progress(f"soak test {i + 1}/{tests}: {r['level']}, RSS {rss:.1f} MB, heap {heap:.1f} MB, "
                              f"{blocks} Python blocks, {threads} threads, "
-                             f"diagnosis {rows[-1]['diagnosis_s']:.2f} s, test {wall:.2f} s")
+                             f"diagnosis {rows[-1]['diagnosis_s']:.2f} s, test {wall:.2f} s ({cpu:.2f} s CPU), "
+                             f"load {os.getloadavg()[0]:.1f}")
         except KeyboardInterrupt:   # Ctrl-C: summarise the tests run so far
             if len(rows) <= warmup:
                 raise
@@ -96,8 +97,10 @@ def summarise(rows: list[dict], warmup: int, results: int, log_mb: float, planne
     blocks = np.array([r.get("py_blocks", np.nan) for r in after], float)
     thr = np.array([r["threads"] for r in after])
     diag = np.array([r["diagnosis_s"] for r in after])
+    cpu = np.array([r.get("cpu_s", np.nan) for r in after])
     tenth = max(1, len(after) // 10)
     first, last = np.nanmedian(diag[:tenth]), np.nanmedian(diag[-tenth:])
+    cpu_first, cpu_last = np.nanmedian(cpu[:tenth]), np.nanmedian(cpu[-tenth:])
     return {"tests": len(rows), "planned": planned or len(rows), "warmup": warmup, "verdicts": results,
             "windows_lost": sum(not r["ok"] for r in rows),
             "rss_after_warmup_mb": float(rss[0]), "rss_end_mb": float(rss[-1]), "rss_max_mb": float(rss.max()),
@@ -107,7 +110,9 @@ def summarise(rows: list[dict], warmup: int, results: int, log_mb: float, planne
             "py_blocks_after_warmup": float(blocks[0]), "py_blocks_end": float(blocks[-1]),
             "threads_min": int(thr.min()), "threads_max": int(thr.max()),
             "diagnosis_first_tenth_s": float(first), "diagnosis_last_tenth_s": float(last),
-            "diagnosis_drift_ratio": float(last / first), "log_mb": log_mb, "rows": rows}
+            "diagnosis_drift_ratio": float(last / first),
+            "cpu_first_tenth_s": float(cpu_first), "cpu_last_tenth_s": float(cpu_last),
+            "cpu_drift_ratio": float(cpu_last / cpu_first), "log_mb": log_mb, "rows": rows}
 
 
 def _slope(y: np.ndarray) -> float:
@@ -132,7 +137,10 @@ def format_soak(res: dict) -> str:
         f"{res.get('py_blocks_end', float('nan')):.0f} pymalloc blocks in use (sys.getallocatedblocks)",
         f"  threads:           {res['threads_min']} .. {res['threads_max']}",
         f"  diagnosis time:    median {res['diagnosis_first_tenth_s']:.2f} s (first tenth) -> "
-        f"{res['diagnosis_last_tenth_s']:.2f} s (last tenth), ratio {res['diagnosis_drift_ratio']:.2f}",
+        f"{res['diagnosis_last_tenth_s']:.2f} s (last tenth), ratio {res['diagnosis_drift_ratio']:.2f} (wall clock)",
+        f"  CPU per test:      median {res.get('cpu_first_tenth_s', float('nan')):.2f} s (first tenth) -> "
+        f"{res.get('cpu_last_tenth_s', float('nan')):.2f} s (last tenth), ratio "
+        f"{res.get('cpu_drift_ratio', float('nan')):.2f} (the process's CPU time: drift of the work, not of the load)",
         f"  MCAP log:          {res['log_mb']:.1f} MB"])
 
 
@@ -149,8 +157,10 @@ def plot_soak(res: dict, path: str | Path) -> None:
     ax[0].legend(fontsize=8)
     ax[1].plot(n, [r["threads"] for r in rows])
     ax[1].set_ylabel("threads")
-    ax[2].plot(n, [r["diagnosis_s"] for r in rows], ".")
-    ax[2].set_ylabel("diagnosis [s]")
+    ax[2].plot(n, [r["diagnosis_s"] for r in rows], ".", label="diagnosis (wall)")
+    ax[2].plot(n, [r.get("cpu_s", np.nan) for r in rows], ".", label="whole test (process CPU)")
+    ax[2].set_ylabel("time [s]")
+    ax[2].legend(fontsize=8)
     ax[2].set_xlabel("test")
     for a in ax:
         a.axvline(res["warmup"] + 0.5, color="grey", lw=0.8, ls="--")
