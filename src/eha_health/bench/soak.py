@@ -11,6 +11,7 @@ import ctypes
 import ctypes.util
 import gc
 import os
+import signal
 import sys
 import tempfile
 import time
@@ -60,6 +61,17 @@ def soak(tests: int = 300, warmup: int = 20, faults: Faults = Faults(0.4, 0.6, 0
     if tests <= warmup:
         raise ValueError(f"tests ({tests}) must exceed the warm-up ({warmup})")
     rows = []
+
+    def stop(signum, frame):   # SIGTERM as Ctrl-C: a run stopped from outside still summarises
+        raise KeyboardInterrupt
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        return _soak(tests, warmup, faults, seed, progress, rows)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _soak(tests, warmup, faults, seed, progress, rows) -> dict:
     with tempfile.TemporaryDirectory(prefix="eha-soak-") as tmp, \
             Graph(faults=faults, seed=seed, log_path=Path(tmp) / "soak.mcap") as g:
         try:
@@ -80,7 +92,7 @@ def soak(tests: int = 300, warmup: int = 20, faults: Faults = Faults(0.4, 0.6, 0
                              f"{blocks} Python blocks, {threads} threads, "
                              f"diagnosis {rows[-1]['diagnosis_s']:.2f} s, test {wall:.2f} s ({cpu:.2f} s CPU), "
                              f"load {os.getloadavg()[0]:.1f}")
-        except KeyboardInterrupt:   # Ctrl-C: summarise the tests run so far
+        except KeyboardInterrupt:   # Ctrl-C or SIGTERM: summarise the tests run so far
             if len(rows) <= warmup:
                 raise
             if progress:
