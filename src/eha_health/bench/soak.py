@@ -98,7 +98,7 @@ def _soak(tests, warmup, faults, seed, progress, rows) -> dict:
             if progress:
                 progress(f"soak stopped after {len(rows)} tests")
         log_mb = (Path(tmp) / "soak.mcap").stat().st_size / 1e6
-        results = len(g.monitor.results)
+        results = g.monitor.verdicts
     return summarise(rows, warmup, results, log_mb, planned=tests)
 
 
