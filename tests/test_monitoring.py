@@ -63,6 +63,31 @@ def test_windows_are_taken_in_order_and_forgotten(run):
     assert set(tr.windows) == {2}
 
 
+def test_a_long_run_holds_only_the_samples_an_open_window_can_need(run):
+    """Soak (issue 18): after each reported window the buffers keep no samples of it, only those of
+    a later test that arrived before its marks; an open window's samples stay until it is reported."""
+    tr, period = WindowTracker(), 4 * NS
+    for tid in range(1, 21):
+        stamps = _feed(tr, run, tid * period)
+        tr.mark(int(stamps[0]), "start", tid, 0.0, 1.0)
+        tr.mark(int(stamps[-1]), "end", tid, 0.0, 1.0)
+        early = _feed(tr, run, (tid + 1) * period, slice(0, 5))    # the next test's first samples, marks not yet here
+        (w,) = tr.ready(0.0, 1.0)
+        r = tr.assemble(w)
+        tr.forget(tid)
+        assert {c: len(b) for c, b in tr.buffers.items()} == {c: 5 for c in CHANNELS}
+        assert all(b[0][0] == early[0] for b in tr.buffers.values())
+        for c in CHANNELS:                                          # the next feed repeats them: start clean
+            tr.buffers[c].clear()
+    np.testing.assert_array_equal(r.position, run.position)
+    stamps = _feed(tr, run, 0)
+    tr.mark(int(stamps[0]), "start", 1, 0.0, 1.0)                   # open, no end yet
+    tr.mark(int(stamps[0]), "start", 2, 0.0, 1.0)
+    tr.mark(int(stamps[-1]), "end", 2, 0.0, 1.0)
+    tr.forget(2)
+    assert all(len(b) == len(stamps) for b in tr.buffers.values())
+
+
 def test_health_policy_levels_follow_the_largest_coefficient():
     p = HealthPolicy(warn_level=0.3, error_level=0.7)
     assert p.level((0.1, 0.2, 0.29))[0] == "OK"

@@ -411,7 +411,7 @@ class MessagesTarget:
         from msg_bridge import contract as C
         mon, plant = self.monitor, self.plant
         subs = {s.topic_name.lstrip("/"): s for s in mon._subs}
-        n_results = len(mon.results)
+        n_verdicts = mon.verdicts
         for m in case:
             if m[0] == "bytes":
                 topic, data = m[1], m[2]
@@ -428,7 +428,8 @@ class MessagesTarget:
             mon._start_diagnosis(w)
         mon._worker.submit(lambda: None).result(timeout=DEADLINE_MS / 1000)
         mon._poll()
-        for r in mon.results[n_results:]:
+        new = min(mon.verdicts - n_verdicts, len(mon.results))
+        for r in list(mon.results)[len(mon.results) - new:]:
             if r["diagnosis"] is None and not _one_line(r["message"]):
                 raise AssertionError(f"a refused window's reason is not one line: {r['message']!r}")
         if len(mon.windows.windows) > mon.windows.max_open:

@@ -93,7 +93,18 @@ class WindowTracker:
         return w.response
 
     def forget(self, test_id: int) -> None:
-        self.windows.pop(test_id, None)
+        """Done with the window: drop it and the samples no open window can still need.
+
+        Samples are kept only from the earliest start mark of the windows still open (or past this
+        window's end): ``BUFFER`` alone would hold 60 s of every channel (~38 MB) in a monitor that
+        needs at most the window in progress."""
+        w = self.windows.pop(test_id, None)
+        if w is None or w.end is None:
+            return
+        keep_from = min([w.end + 1] + [o.start for o in self.windows.values() if o.start is not None])
+        for b in self.buffers.values():
+            while b and b[0][0] < keep_from:
+                b.popleft()
 
     @property
     def waiting(self) -> bool:

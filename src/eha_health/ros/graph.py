@@ -118,11 +118,11 @@ class Graph:
         ``timeout_s`` is a deadline for a graph that is stuck, not a speed target: on a busy 2-core
         machine one test took up to 120 s (measured, load 20), so the default is 600 s."""
         self._wait_truth_service()
-        n = len(self.monitor.results)
+        n = self.monitor.verdicts
         ok, why = self.command.start_test()
         if not ok:
             raise RuntimeError(f"graph: could not start a test: {why}")
-        self.spin_until(lambda: len(self.monitor.results) > n, timeout_s, "monitor verdict")
+        self.spin_until(lambda: self.monitor.verdicts > n, timeout_s, "monitor verdict")
         return self.monitor.results[-1]
 
     def set_plant(self, timeout_s: float = 120.0, **values) -> None:

@@ -56,6 +56,9 @@ WINDOW_TIMEOUT_S = 2.0
 
 #: Verdicts that keep their window's samples and fitted response in ``results`` (older ones drop them).
 KEEP_RESPONSES = 10
+#: Verdicts kept in ``results`` by default (each ~2-4 kB without its response; every verdict is in the
+#: MCAP log, and with a ``history`` in the health history, so a monitor that runs on must not hold all).
+KEEP_VERDICTS = 1000
 
 #: The monitor's parameters (docs/interfaces.md): defaults, units, ranges.
 PARAMS = (
@@ -91,6 +94,8 @@ PARAMS = (
           "prognosis.error_p_fail)", -1.0, 1.0),
     Param("request_tests", 0, "ask the command node (eha/start_test) for this many tests, one after each verdict, "
           "each once every input topic has a matched publisher (0: never ask)", 0, INT_MAX),
+    Param("keep_verdicts", KEEP_VERDICTS, "latest verdicts kept in memory (each is also in the MCAP log, when there "
+          "is one); 0: all", 0, INT_MAX),
 )
 
 
@@ -103,7 +108,9 @@ class MonitorNode(Node):
         self.windows = WindowTracker()
         self._futures: deque = deque()        # diagnoses running in the worker
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eha-diagnose")
-        self.results: list[dict] = []
+        keep = int(self.get_parameter("keep_verdicts").value)
+        self.results: deque[dict] = deque(maxlen=keep or None)   # the latest verdicts, oldest first
+        self.verdicts = 0                                        # verdicts given since the start
         self.bad_messages = 0
         self.received: Counter = Counter()   # messages per input topic
         self._status = Verdict("STALE", "no test window diagnosed yet")
@@ -223,7 +230,9 @@ class MonitorNode(Node):
                 return
             truth = {n: parameter_value_to_python(v) for n, v in zip(names, vals)}
             truth["effects"] = ",".join(e for e in (truth["effects"] or []) if e)
-            self.windows.window(tid).truth = truth
+            w = self.windows.windows.get(tid)
+            if w is not None:   # a late answer must not re-open a window already reported
+                w.truth = truth
             if self.log is not None:
                 self.log.add_metadata(f"truth/test_{tid}", {k: str(v) for k, v in truth.items()})
         fut.add_done_callback(done)
@@ -251,7 +260,7 @@ class MonitorNode(Node):
             return
         if self.tests_requested >= int(self.get_parameter("request_tests").value):
             return
-        if len(self.results) < self.tests_requested or self.busy:
+        if self.verdicts < self.tests_requested or self.busy:
             return
         if not all(s.get_publisher_count() >= 1 for s in self._subs) or not self._start_client.service_is_ready():
             return
@@ -327,9 +336,10 @@ class MonitorNode(Node):
                         k_: json.dumps(x, default=float) for k_, x in rep.as_dict().items()})
         entry.update(level=v.level, message=v.message)
         self.results.append(entry)
-        # a long run keeps every verdict but only the last windows' samples and fitted responses
-        # (~0.4 MB a test: 300 tests would hold 120 MB)
-        for old in self.results[-KEEP_RESPONSES - 1:-KEEP_RESPONSES]:
+        self.verdicts += 1
+        # only the last windows' samples and fitted responses stay (~0.4 MB a test: 300 tests would hold 120 MB)
+        if len(self.results) > KEEP_RESPONSES:
+            old = self.results[-KEEP_RESPONSES - 1]
             old["response"] = None
             if old["diagnosis"] is not None:
                 old["diagnosis"].fitted = None
@@ -376,7 +386,7 @@ class MonitorNode(Node):
     @property
     def done(self) -> bool:
         n = int(self.get_parameter("exit_after").value)
-        return n > 0 and len(self.results) >= n
+        return n > 0 and self.verdicts >= n
 
     def close(self) -> None:
         """Stop the worker and close the log (writes its summary)."""

@@ -142,7 +142,8 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
         mon = None
         if with_monitor:
             mon = MonitorNode(context=ctx, parameter_overrides=[Parameter("log_path", value=str(log_path)),
-                                                                 Parameter("method", value=method)])
+                                                                 Parameter("method", value=method),
+                                                                 Parameter("keep_verdicts", value=0)])   # returns all
             nodes.append(mon)
         # with the monitor here, pace by what it has taken (flow control), not by a fixed rate
         delivered = (lambda: sum(mon.received.values())) if mon is not None else None
@@ -157,7 +158,7 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
         def finished():
             if not rep.done:
                 return False
-            return mon is None or (len(mon.results) >= n_windows and not mon.busy)
+            return mon is None or (mon.verdicts >= n_windows and not mon.busy)
         while not finished() and time.monotonic() < end:
             ex.spin_once(timeout_sec=0.01)
         linger = time.monotonic() + 1.0   # let reliable deliveries to other processes complete
