@@ -196,7 +196,7 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
     seed : int
         Seed of every random choice (GA); the same seed gives the same diagnosis.
     start : Faults, optional
-        Start point of the deterministic search (default: the coarse detector's estimate).
+        Start point of the search (default: the signature tables' estimate, :func:`start_point`).
     params : ModelParams, optional
         The monitor model (default: the shipped, calibrated one).
     """
