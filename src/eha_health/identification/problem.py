@@ -84,7 +84,12 @@ class KnobModel:
         P = np.stack([self.packed(x) for x in X])
         P_u, inverse = np.unique(P, axis=0, return_inverse=True)
         self.runs += len(P_u)
-        outs = simulate_packed(P_u, self.record.command, self.record.load)[np.ravel(inverse)]
+        cmd, load, n0 = self.record.command, self.record.load, 0
+        if self.record.preroll is not None:
+            n0 = len(self.record.preroll)
+            cmd = np.concatenate([self.record.preroll, cmd])
+            load = None if load is None else np.concatenate([np.zeros(n0), load])
+        outs = simulate_packed(P_u, cmd, load)[np.ravel(inverse), n0:]
         rec = [(i, k) for i, k in enumerate(self.knobs) if k.recording]
         if rec:
             rate = self.record.sample_rate

@@ -29,6 +29,9 @@ class Record:
     channels: dict[str, np.ndarray]
     load: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
+    #: command [m] simulated before t = 0 at the same rate, its outputs not compared: what led
+    #: into the test when it did not start at rest (``FDISequence.preamble``); None: from rest
+    preroll: np.ndarray | None = None
 
     @classmethod
     def from_response(cls, r: Response, channels: tuple[str, ...] | None = None) -> "Record":

@@ -32,8 +32,12 @@ class FDISequence:
     switch_time: float = 2.5       # s
     f_high: float = 4.0            # Hz
     duration: float = 3.5          # s
+    settle: float = 0.5            # s, between two tests: back to the first command, then rest
+    preroll: float = 1.0           # s of the sequence's end simulated before a test that follows one
 
     def __post_init__(self):
+        if not (np.isfinite(self.settle) and self.settle >= 0 and np.isfinite(self.preroll) and self.preroll >= 0):
+            raise ValueError("sequence settle and preroll must be finite and >= 0 [s]")
         order = (0.0, self.step_time, self.return_time, self.sine_start, self.switch_time, self.duration)
         if any(b <= a for a, b in zip(order, order[1:])):
             raise ValueError(f"sequence times must increase: 0 < step < return < sine < switch < end, got {order}")
@@ -54,6 +58,23 @@ class FDISequence:
         phase0 = 2 * np.pi * self.f_low * (self.switch_time - self.sine_start)
         x[high] = self.sine_amplitude * np.sin(phase0 + 2 * np.pi * self.f_high * (t[high] - self.switch_time))
         return x
+
+    def return_to_start(self, u_from: float, n: int) -> np.ndarray:
+        """``n`` samples from ``u_from`` [m] back to the first command, a raised cosine: the
+        first half of the settle between two tests (the actuator then rests there)."""
+        u0 = float(self.command(np.zeros(1))[0])
+        return u_from + (u0 - u_from) * (1 - np.cos(np.pi * np.arange(1, n + 1) / n)) / 2
+
+    def preamble(self, sample_rate: float) -> np.ndarray:
+        """Command [m] that leads into a test following another one: the last ``preroll`` s of
+        the sequence, the return to start over half the ``settle`` and the rest over the other
+        half. Simulated from rest before the test, it leaves a model where the earlier test left
+        the actuator: off the command by the dry friction, holding a load pressure, the jack at
+        one side of its play (the state a fit from rest misses)."""
+        t = self.times(sample_rate)
+        tail = self.command(t[t >= self.duration - self.preroll])
+        m = int(round(self.settle / 2 * sample_rate))
+        return np.concatenate([tail, self.return_to_start(tail[-1], m), np.full(m, self.command(np.zeros(1))[0])])
 
     def times(self, sample_rate: float) -> np.ndarray:
         """Sample times [s] covering [0, duration)."""

@@ -39,7 +39,7 @@ PARAMS = (
           0.0, 3600.0),
     Param("graph_grace_s", 2.0, "after plant and monitor are discovered, wait this long before autostart [s]",
           0.0, 600.0),
-    Param("settle_s", 0.5, "between two tests [s of simulated time]: the actuator is brought back to the "
+    Param("settle_s", FDISequence().settle, "between two tests [s of simulated time]: the actuator is brought back to the "
           "test's first command over the first half (raised cosine) and rests there", 0.0, 60.0),
     Param("max_in_flight", 200, "rate 0: samples ahead of the plant", 1, C.SAMPLE_DEPTH),
     Param("actuator_id", "eha", "joint name in the command messages"),
@@ -108,7 +108,7 @@ class CommandNode(Node):
         m = int(round(float(self.get_parameter("settle_s").value) / 2 * fs))
         m = min(m, max(0, (t0 - self._last_ns) // dt_ns - 1) // 2)   # settle_s raised since: fit the gap
         if self._last_u is not None and m > 0 and self._last_u != u[0]:
-            back = self._last_u + (u[0] - self._last_u) * (1 - np.cos(np.pi * np.arange(1, m + 1) / m)) / 2
+            back = self.sequence.return_to_start(self._last_u, m)
             lead = t0 - 2 * m * dt_ns + dt_ns * np.arange(1, m + 1, dtype=np.int64)
             u, stamps = np.concatenate([back, u]), np.concatenate([lead, stamps])
         else:
