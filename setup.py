@@ -18,7 +18,7 @@ setup(
     license='Apache-2.0',
     package_dir=package_dir,
     packages=src_packages + ['msg_bridge'],
-    package_data={package_name: ['data/*.yaml']},
+    package_data={package_name: ['data/*.yaml', 'data/*.json']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
         ('share/' + package_name, ['package.xml']),

@@ -81,6 +81,21 @@ def test_start_table_reads_the_faults_back_from_the_signatures():
         assert np.abs(np.array(est.as_tuple()) - case).max() <= 0.05, (case, est)
 
 
+def test_shipped_start_table_is_the_monitors():
+    """The shipped tables are used for the shipped monitor and equal a fresh build (re-write them
+    with tools/start_table.py after a change to the monitor, the kernels or the sequence)."""
+    from eha_health import FDISequence, load
+    from eha_health.identification.start import StartTable
+    params, seq = load("monitor"), FDISequence()
+    shipped = StartTable.shipped(params, seq)
+    assert shipped is not None, "data/start_table.json is stale: run tools/start_table.py"
+    built = StartTable.build(params, seq)
+    for name in ("fsj_plateau", "gm_overshoot", "bkl_velocity"):
+        np.testing.assert_allclose(getattr(shipped, name), getattr(built, name), rtol=1e-9, err_msg=name)
+    # another parameter set is not served the shipped tables
+    assert StartTable.shipped(params.updated("jack", mass=6.0), seq) is None
+
+
 def test_fast_method_on_the_paper_fitness_is_unguarded():
     d = diagnose(simulate("reference", Faults(0.4, 0.4, 0.6)), fitness="paper")
     assert d.method == "fast" and d.guard == "unjudged"

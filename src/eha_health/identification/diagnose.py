@@ -348,5 +348,5 @@ def _start_table(params: ModelParams, sequence: FDISequence) -> StartTable:
     if key not in _TABLES:
         while len(_TABLES) >= 4:
             _TABLES.pop(next(iter(_TABLES)))
-        _TABLES[key] = StartTable.build(params, sequence)
+        _TABLES[key] = StartTable.shipped(params, sequence) or StartTable.build(params, sequence)
     return _TABLES[key]

@@ -8,19 +8,26 @@ Each fault moves one signature almost alone (measured on the monitor, ``eha-heal
 * K_BKL -- the velocity peak during the ramp, which also falls with K_GM: a table over
   (K_GM, K_BKL), read at the K_GM found first.
 
-The tables are monitor runs at fixed levels (one parallel batch, built once per parameter
-set); a measured signature is read back by monotone linear interpolation. The estimate is
+The tables are monitor runs at fixed levels (one parallel batch of 85 runs, ~0.4 s, built once
+per parameter set); a measured signature is read back by monotone linear interpolation. The
+shipped monitor's tables ship as ``data/start_table.json`` (keyed by a hash of the packed
+parameters, the sequence and the levels; ``tools/start_table.py`` re-writes it, a test checks it
+against a fresh build), so a one-shot ``diagnose`` does not pay the batch. The estimate is
 only a start: the local fit finishes it, and the global guard of :func:`~.diagnose.diagnose`
 catches a start in the wrong basin.
 """
 from __future__ import annotations
 
+import hashlib
+import json
 from dataclasses import dataclass
+from importlib import resources
 
 import numpy as np
 
 from ..physics.faults import FAULT_UPPER, Faults
 from ..physics.model import response_from_rows, simulate_batch
+from ..physics.packing import pack
 from ..physics.params import ModelParams
 from ..physics.sequence import FDISequence
 from ..signals.response import Response
@@ -31,6 +38,15 @@ FSJ_LEVELS = (0.0, 0.5, 1.0, 1.5)
 GM_LEVELS = (0.0, 0.2, 0.4, 0.6, 0.8, 1.0, 1.1, 1.2, 1.3, 1.4, 1.5)
 GRID_GM = (0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 1.5)
 GRID_BKL = (0.0, 0.1, 0.2, 0.3, 0.4, 0.6, 0.8, 1.0, 1.25, 1.5)
+#: The shipped monitor's tables (package data).
+SHIPPED = "start_table.json"
+
+
+def table_key(params: ModelParams, sequence: FDISequence) -> str:
+    """What the tables depend on: the packed parameters, the sequence and the levels (sha256)."""
+    h = hashlib.sha256(pack(params).tobytes())
+    h.update(repr((sequence, FSJ_LEVELS, GM_LEVELS, GRID_GM, GRID_BKL)).encode())
+    return h.hexdigest()
 
 
 def _invert(levels, values, v: float) -> float:
@@ -69,6 +85,21 @@ class StartTable:
         return cls(np.array([s.pressure_plateau for s in sig[:n1]]),
                    np.array([s.overshoot for s in sig[n1:n2]]),
                    np.array([s.velocity_peak for s in sig[n2:]]).reshape(len(GRID_GM), len(GRID_BKL)))
+
+    def as_dict(self) -> dict:
+        return {"fsj_plateau": self.fsj_plateau.tolist(), "gm_overshoot": self.gm_overshoot.tolist(),
+                "bkl_velocity": self.bkl_velocity.tolist()}
+
+    @classmethod
+    def shipped(cls, params: ModelParams, sequence: FDISequence) -> "StartTable | None":
+        """The shipped tables if they were built for ``params`` and ``sequence``, else None."""
+        try:
+            data = json.loads((resources.files("eha_health") / "data" / SHIPPED).read_text())
+        except (OSError, ValueError):
+            return None
+        if not isinstance(data, dict) or data.get("key") != table_key(params, sequence):
+            return None
+        return cls(*(np.asarray(data[k], float) for k in ("fsj_plateau", "gm_overshoot", "bkl_velocity")))
 
     def estimate(self, sig: Signatures) -> Faults:
         """(K_GM, K_FSJ, K_BKL) whose tabulated signatures match ``sig`` (each within [0, FAULT_UPPER])."""
