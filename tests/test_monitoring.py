@@ -107,5 +107,6 @@ def test_verdict_of_a_real_diagnosis_carries_the_status_values():
     for n in ("k_gm", "k_fsj", "k_bkl"):
         assert v.values[n] == getattr(d.faults, n) and v.values[n + "_std"] == d.std[n]
     assert v.values["window_start_s"] == 2.0 and v.values["method"] == "deterministic"
+    assert v.values["guard"] == "none"      # no guard outside the fast method
     line = results_summary([{"test_id": 1, "diagnosis": d.as_dict(), "truth": {"k_gm": 0.4, "k_fsj": 0.6, "k_bkl": 0.4}}])
     assert line.startswith("test 1: K_GM=") and "(truth 0.600)" in line
