@@ -69,7 +69,7 @@ class HealthPolicy:
                        "rms_pressure_pa": diagnosis.rms["pressure"], "method": diagnosis.method,
                        "fitness_function": diagnosis.fitness, "evaluations": diagnosis.evaluations,
                        "wall_time_s": diagnosis.wall_time_s, "window_start_s": window_start_ns / NS,
-                       "guard": getattr(diagnosis, "guard", "") or "none",
+                       "guard": diagnosis.guard or "none",
                        "warnings": "; ".join(diagnosis.warnings) or "none"})
         return Verdict(level, msg, values)
 
