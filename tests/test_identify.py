@@ -42,6 +42,19 @@ def test_global_guard_falls_back_from_a_wrong_basin():
     assert d.fit_quality <= 4
 
 
+def test_a_fit_stopped_at_a_cliff_of_the_cost_is_restarted_beside_it_not_globally():
+    """At (0.0511, 0.4647, 0.9301) the fast fit stops 0.0015 from the truth on the high side of
+    a cliff of the stage cost (an event that comes or goes: 29x the floor, measured); a point
+    0.001 away in K_BKL is below it. The guard fails, the local probe restarts from the best
+    neighbour, and that fit passes: no global search, and the report says what happened."""
+    case = (0.0511, 0.4647, 0.9301)
+    d = diagnose(simulate("reference", Faults(*case)))
+    assert d.guard == "probed", d.warnings
+    assert any("neighbouring point" in w for w in d.warnings), d.warnings
+    assert np.abs(np.array(d.faults.as_tuple()) - case).max() <= 0.005
+    assert d.fit_quality <= 4 and d.evaluations < 200      # the hybrid took ~600 runs here
+
+
 def second_test(case, effects=()):
     """The second of two FDI tests on one reference plant, with the command node's return to
     start and rest between them: the actuator starts it where dry friction stopped it."""

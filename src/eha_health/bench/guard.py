@@ -3,7 +3,8 @@ a wrong basin through.
 
 Random fault triples (clean reference runs) diagnosed by the default method from random start
 points in [0, FAULT_UPPER]^3 instead of the signature tables' start: a far start is how the fast
-path lands in a wrong basin. Per case: whether the guard fired, the final error, the runs. A miss
+path lands in a wrong basin. Per case: whether the guard fired (or passed after the local probe,
+:func:`~eha_health.identification.diagnose.probe`), the final error, the runs. A miss
 is a final error above ``tolerance`` with the guard passed.
 """
 from __future__ import annotations
@@ -32,7 +33,7 @@ def guard_bench(n: int = 12, seed: int = 3, tolerance: float = 0.01, progress=No
                      f"{d.evaluations} runs")
     fired = [r for r in rows if r["guard"] == "fired"]
     return {"method": DEFAULT_METHOD, "seed": seed, "cases": n, "tolerance": tolerance, "rows": rows,
-            "fired": len(fired), "missed": sum(r["max_abs_err"] > tolerance and r["guard"] != "fired" for r in rows),
+            "fired": len(fired), "probed": sum(r["guard"] == "probed" for r in rows), "missed": sum(r["max_abs_err"] > tolerance and r["guard"] != "fired" for r in rows),
             "max_abs_err": max(r["max_abs_err"] for r in rows),
             "runs_mean_passed": float(np.mean([r["evaluations"] for r in rows if r["guard"] != "fired"] or [np.nan])),
             "runs_mean_fired": float(np.mean([r["evaluations"] for r in fired] or [np.nan]))}
@@ -40,6 +41,6 @@ def guard_bench(n: int = 12, seed: int = 3, tolerance: float = 0.01, progress=No
 
 def format_guard(res: dict) -> str:
     return (f"bench guard ({res['method']}, {res['cases']} random cases from random starts, seed {res['seed']}): "
-            f"guard fired {res['fired']} times, wrong basins let through {res['missed']} "
+            f"guard fired {res['fired']} times, passed after the local probe {res.get('probed', 0)}, wrong basins let through {res['missed']} "
             f"(final error > {res['tolerance']}); largest final error {res['max_abs_err']:.4f}; runs: "
             f"{res['runs_mean_passed']:.0f} mean when it passed, {res['runs_mean_fired']:.0f} when it fired")

@@ -178,7 +178,8 @@ def summarise(rows: list[Row]) -> dict:
             "wall_time_s_max": float(np.max([x["wall_time_s"] for x in recs])),
             "evaluations_mean": float(np.mean([x["evaluations"] for x in recs])),
             "guard_fired": int(sum(x["guard"] == "fired" for x in recs)),
-            "guard_judged": int(sum(x["guard"] in ("passed", "fired") for x in recs)),
+            "guard_probed": int(sum(x["guard"] == "probed" for x in recs)),
+            "guard_judged": int(sum(x["guard"] in ("passed", "probed", "fired") for x in recs)),
             "fit_quality_max": float(np.nanmax([x["fit_quality"] for x in recs]))
             if np.isfinite([x["fit_quality"] for x in recs]).any() else None,
             "combined_table_wall_s": float(sum(x["wall_time_s"] for x in recs if x["group"] == "combined"))}
@@ -256,7 +257,8 @@ def guard_line(res: dict) -> str:
     for m, s in res["methods"].items():
         if s.get("guard_judged"):
             q = s["fit_quality_max"]
-            out.append(f"{m}: global guard fired in {s['guard_fired']} of {s['guard_judged']} diagnoses "
+            out.append(f"{m}: global guard fired in {s['guard_fired']} of {s['guard_judged']} diagnoses, "
+                       f"passed after the local probe in {s.get('guard_probed', 0)} "
                        f"(largest fit quality {_f(q, '{:.2f}')}, limit {GUARD_FACTOR:g})")
     return "; ".join(out)
 
