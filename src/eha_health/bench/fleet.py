@@ -176,28 +176,60 @@ def on_cluster(recordings, workers: int, method: str, progress=None) -> dict:
             "worker_setup": s["worker_setup"], "k": k}
 
 
+def _pool(runs: list[dict]) -> dict:
+    """One configuration over rounds: throughput from the summed tasks and batch times, the other
+    figures averaged; the per-round throughputs kept; K and the worker setup of the first round."""
+    out = dict(runs[0])
+    tasks, batch = sum(r["tasks"] for r in runs), sum(r["batch_time_s"] for r in runs)
+    for k, v in runs[0].items():
+        if isinstance(v, float) and k not in ("batch_time_s", "per_hour"):
+            out[k] = float(np.mean([r[k] for r in runs]))
+    out.update(tasks=tasks, batch_time_s=batch, per_hour=3600.0 * tasks / batch,
+               per_hour_rounds=[r["per_hour"] for r in runs])
+    return out
+
+
 def bench_fleet(n_tests: int = 60, method: str | None = None, fleet_dir: str | Path = "out/bench_fleet",
                 fmt: str = "mcap", seed: int = 17, workers: tuple = (1, 2), plot: str | None = "out/bench_fleet.png",
-                all_cores_serial: bool = False, progress: Callable[[str], None] | None = None) -> dict:
-    """Throughput of serial vs LocalCluster(1, 2 workers) on the same ``n_tests`` simulated recordings."""
+                all_cores_serial: bool = False, rounds: int = 3,
+                progress: Callable[[str], None] | None = None) -> dict:
+    """Throughput of serial vs LocalCluster(1, 2 workers) on the same ``n_tests`` simulated recordings.
+
+    The configurations run ``rounds`` times, in forward then reverse order (serial, 1, 2 workers;
+    2, 1, serial; ...): this 2-core virtual machine's speed drifts by +-15 % over tens of seconds
+    (the same in-process work measured 0.20-0.29 CPU s per diagnosis in back-to-back runs), which a
+    single pass in a fixed order turns into a bias against whichever configuration runs later.
+    Each configuration's throughput is its tasks over its batch time summed over the rounds; the
+    speedup is the ratio of those, and ``speedup_rounds`` the ratio within each round."""
     from ..identification.diagnose import DEFAULT_METHOD
     method = method or DEFAULT_METHOD
+    if not isinstance(rounds, int) or rounds < 1:
+        raise FleetError(f"--rounds must be a positive integer, got {rounds!r}")
     fleet_dir = Path(fleet_dir) / f"{fmt}_{n_tests}_seed{seed}"
     n_act = max(1, math.ceil(n_tests / 10))
     if not (fleet_dir / MANIFEST_NAME).is_file():
         simulate_fleet(n_act, math.ceil(n_tests / n_act), seed, fleet_dir, fmt, progress)
     recordings = read_manifest(fleet_dir / MANIFEST_NAME)[:n_tests]
     res: dict = {"tests": len(recordings), "method": method, "format": fmt, "fleet": str(fleet_dir),
-                 "cpu_count": os.cpu_count(), "load": {"start": _load()}}
-    res["serial"] = serial(recordings, method, progress)
-    res["load"]["after_serial"] = _load()
-    if all_cores_serial:
-        import numba
-        res["serial_all_cores"] = serial(recordings, method, progress, threads=numba.config.NUMBA_NUM_THREADS)
-        res["load"]["after_serial_all_cores"] = _load()
-    for n in workers:
-        res[f"workers_{n}"] = on_cluster(recordings, n, method, progress)
-        res["load"][f"after_workers_{n}"] = _load()
+                 "cpu_count": os.cpu_count(), "rounds": rounds, "load": {"start": _load()}}
+    import numba
+    configs = ["serial"] + (["serial_all_cores"] if all_cores_serial else []) + [f"workers_{n}" for n in workers]
+    runs: dict[str, list] = {c: [] for c in configs}
+    for r in range(rounds):
+        for c in (configs if r % 2 == 0 else configs[::-1]):
+            if progress:
+                progress(f"round {r + 1}/{rounds}: {c}")
+            if c == "serial":
+                runs[c].append(serial(recordings, method, progress))
+            elif c == "serial_all_cores":
+                runs[c].append(serial(recordings, method, progress, threads=numba.config.NUMBA_NUM_THREADS))
+            else:
+                runs[c].append(on_cluster(recordings, int(c.split("_")[1]), method, progress))
+            res["load"][f"after_{c}" + (f"_round{r + 1}" if rounds > 1 else "")] = _load()
+    for c in configs:
+        res[c] = _pool(runs[c])
+    res["speedup_rounds"] = {c: [w["per_hour"] / s["per_hour"] for w, s in zip(runs[c], runs["serial"])]
+                             for c in configs if c != "serial"}
     base = res["serial"]["per_hour"]
     res["speedup"] = {f"workers_{n}": res[f"workers_{n}"]["per_hour"] / base for n in workers}
     if all_cores_serial:
@@ -273,6 +305,9 @@ def format_bench(res: dict) -> str:
                      f"throughput); warm-up per worker "
                      + ", ".join(f"{w['warm_up_s']:.2f} s" for w in r["worker_setup"])
                      + f"; max |K - serial K| {res['max_k_difference_vs_serial'][k]:.2g}")
+    if res.get("rounds", 1) > 1:
+        lines.append(f"  {res['rounds']} rounds (forward, then reverse order); vs serial within each round: " + "; ".join(
+            f"{k} " + " / ".join(f"{v:.2f}x" for v in vs) for k, vs in res["speedup_rounds"].items()))
     lines.append("  CPU time (less load-dependent than wall time; all processes: client, scheduler, nannies, workers):")
     for k in [k for k in ("serial", "serial_all_cores") if k in res] + [k for k in res if k.startswith("workers_")]:
         r = res[k]

@@ -162,7 +162,8 @@ def bench_fleet(args) -> int:
     if n_tests < 2:
         raise UsageError(f"--tests must be >= 2, got {n_tests}")
     res = run(n_tests=n_tests, method=method, fmt=args.format, seed=args.seed or 17,
-              plot=_plot(args, "out/bench_fleet.png"), all_cores_serial=args.serial_all_cores, progress=progress(args))
+              plot=_plot(args, "out/bench_fleet.png"), all_cores_serial=args.serial_all_cores, rounds=args.rounds,
+              progress=progress(args))
     print(json.dumps(res, indent=2, default=float) if args.json else format_bench(res))
     return 0
 
@@ -201,6 +202,8 @@ def register(sub) -> None:
     b.add_argument("--tests", type=int, default=None, metavar="N",
                    help="fleet: recordings diagnosed by each configuration (60); soak: consecutive tests (300)")
     b.add_argument("--format", choices=("mcap", "csv"), default="mcap", help="fleet: recording format (mcap)")
+    b.add_argument("--rounds", type=int, default=3, metavar="N",
+                   help="fleet: run the configurations N times, forward then reverse order (3)")
     b.add_argument("--serial-all-cores", action="store_true",
                    help="fleet: also time the serial loop with numba on all cores")
     b.add_argument("--effects", default="", metavar="A,B",

@@ -43,9 +43,12 @@ from .worker import FleetWorkerSetup, diagnose_recording, worker_info
 #: CPU-bound thread: the worker's statistical profiler (a stack sample every 10 ms) would only take
 #: CPU from it, and sub-second memory and system polling buy nothing at that time scale. Tasks wait
 #: in the scheduler's queue until a worker is free (worker-saturation), so work stealing (a scheduler
-#: pass every 100 ms) has nothing to balance.
+#: pass every 100 ms) has nothing to balance. The event-loop health tick (Dask's 20 ms) cost 9 % of a
+#: core on an idle 2-worker cluster, 2 % at 1 s (docs/fleet.md); a task runs in its own thread, so a
+#: long tick only delays the "event loop unresponsive" warning, whose limit goes to 30 s.
 CLUSTER_CONFIG = {"distributed.worker.profile.enabled": False,
                   "distributed.scheduler.work-stealing": False,
+                  "distributed.admin.tick.interval": "1s", "distributed.admin.tick.limit": "30s",
                   "distributed.worker.memory.monitor-interval": "1s",
                   "distributed.admin.system-monitor.interval": "2s"}
 FAILURE_COLUMNS = ("wall_time_utc", "path", "source_hash", "actuator_id", "time_h", "reason")
