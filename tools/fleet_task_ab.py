@@ -10,25 +10,18 @@ of reading and of the diagnosis.
 Needs ``eha-health bench fleet --tests 50`` to have written out/bench_fleet/mcap_50_seed17.
 """
 import argparse
-import time
 
 import numpy as np
 
 
 def block(paths, params):
-    import numba
-    numba.set_num_threads(1)
-    from eha_health.fleet.recordings import read_recording
-    from eha_health.identification.diagnose import diagnose
+    """CPU s (the task thread's) of reading and of diagnosing each recording, by the fleet's own task."""
+    from eha_health.fleet.worker import diagnose_recording
     rs, ds = [], []
     for p in paths:
-        c0 = time.thread_time()
-        r, _ = read_recording(p)
-        c1 = time.thread_time()
-        diagnose(r, params=params)
-        c2 = time.thread_time()
-        rs.append(c1 - c0)
-        ds.append(c2 - c1)
+        res = diagnose_recording(p, params)
+        rs.append(res["task_cpu_s"] - res["diagnosis_cpu_s"])
+        ds.append(res["diagnosis_cpu_s"])
     return rs, ds
 
 
