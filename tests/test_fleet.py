@@ -2,6 +2,7 @@
 real bags and CSVs from ``fleet simulate``; kill-and-resume with a client killed by SIGKILL."""
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -126,6 +127,10 @@ def test_fleet_diagnose_on_a_local_cluster_is_idempotent_and_logs_failures(bags,
     assert len(s["worker_setup"]) == 2 and all(w["setups"] == 1 for w in s["worker_setup"])
     assert all(w["numba_threads"] == 1 for w in s["worker_setup"]) and s["task_numba_threads"] == [1]
     assert sum(w["tasks"] for w in s["worker_setup"]) == 5   # broken.mcap ran and failed on a worker
+    # worker processes start without Dask's malloc trim threshold (it turns glibc's adaptive mmap
+    # threshold off: thousands of page faults per diagnosis) and with numba's pool at one thread
+    env = client.run(lambda: (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("NUMBA_NUM_THREADS")))
+    assert set(env.values()) == {(None, "1")}, env
     again = diagnose_fleet(recs, db, method=METHOD, client=client)
     assert (again["diagnosed"], again["skipped"], again["failed"]) == (0, 4, 0)
     assert len(_rows(db)) == 4
@@ -183,3 +188,22 @@ def test_a_client_killed_mid_batch_resumes_with_no_duplicate_and_no_lost_row(cli
     rows = _rows(db)
     assert len(rows) == len(recs) == len({r["source_hash"] for r in rows})
     assert {(r["actuator_id"], r["time_h"]) for r in rows} == {(r.actuator_id, r.time_h) for r in recs}
+
+
+def test_dask_config_gives_hand_started_workers_the_local_cluster_settings(tmp_path, capsys):
+    """``fleet dask-config`` written where Dask looks: a worker's nanny would spawn it with the
+    same environment as a LocalCluster's (Dask's malloc trim threshold removed, numba on one
+    thread) and the same worker settings (read by a fresh interpreter, as ``dask worker`` does)."""
+    assert cli_main(["fleet", "dask-config"]) == 0
+    (tmp_path / "eha-health.yaml").write_text(capsys.readouterr().out)
+    probe = ("import json, dask, distributed\n"
+             "from distributed.nanny import _get_env_variables\n"
+             "print(json.dumps([_get_env_variables('distributed.nanny.pre-spawn-environ'),\n"
+             "                  dask.config.get('distributed.worker.profile.enabled'),\n"
+             "                  dask.config.get('distributed.admin.tick.interval')]))\n")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("DASK_")}
+    out = subprocess.run([sys.executable, "-c", probe], env={**env, "DASK_CONFIG": str(tmp_path)},
+                         capture_output=True, text=True, check=True).stdout
+    spawn_env, profile, tick = json.loads(out)
+    assert "MALLOC_TRIM_THRESHOLD_" not in spawn_env and spawn_env["NUMBA_NUM_THREADS"] == "1"
+    assert spawn_env["OMP_NUM_THREADS"] == "1" and profile is False and tick == "1s"

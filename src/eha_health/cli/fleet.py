@@ -1,4 +1,4 @@
-"""``eha-health fleet simulate | diagnose``: many recorded tests on a Dask cluster, into the history."""
+"""``eha-health fleet simulate | diagnose | dask-config``: many recorded tests on a Dask cluster, into the history."""
 from __future__ import annotations
 
 import json
@@ -35,6 +35,12 @@ def cmd_fleet_diagnose(args) -> int:
     return 1 if s["failed"] else 0   # the batch ran to its end; 1 tells a script that some files failed
 
 
+def cmd_fleet_dask_config(args) -> int:
+    from ..fleet.batch import dask_config_yaml
+    print(dask_config_yaml(), end="")
+    return 0
+
+
 def register(sub) -> None:
     f = sub.add_parser("fleet", help="fleet scale: simulate a fleet of recordings, diagnose many on Dask")
     fs = f.add_subparsers(dest="fleet_command", required=True)
@@ -56,3 +62,6 @@ def register(sub) -> None:
     d.add_argument("--discrepancy", action="store_true",
                    help="also run the discrepancy loop on each test and store its verdict")
     d.set_defaults(func=cmd_fleet_diagnose)
+    c = fs.add_parser("dask-config", help="print the Dask settings of fleet workers as a YAML config file "
+                      "(for ~/.config/dask/ on the machines of a real cluster)")
+    c.set_defaults(func=cmd_fleet_dask_config)

@@ -39,6 +39,17 @@ from ..prognostics.store import HealthRecord, HistoryStore, sha256_file
 from .recordings import FleetError, Recording, complete_identity
 from .worker import FleetWorkerSetup, diagnose_recording, worker_info
 
+#: The environment a LocalCluster worker process starts with (Dask's ``pre-spawn-environ``): the
+#: BLAS and OpenMP pools at one thread as Dask sets them, numba's too (read when numba is imported),
+#: and not Dask's ``MALLOC_TRIM_THRESHOLD_=65536``. Setting any malloc threshold turns glibc's
+#: adaptive mmap threshold off, so every array over 128 kB became a fresh mmap whose pages fault in
+#: again: 6,300 page faults and 8-10 ms of system time per diagnosis on a worker against 1,400 and
+#: 0-4 ms in-process (docs/fleet.md). A task returns a few kB; memory is not what a worker runs short of.
+#: (None removes a variable Dask's defaults would set: ``dask.config.set`` replaces the whole dict, a
+#: YAML config file on a remote worker merges into it.)
+WORKER_ENVIRON = {"OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1, "NUMBA_NUM_THREADS": 1,
+                  "MALLOC_TRIM_THRESHOLD_": None}
+
 #: Dask settings of the LocalCluster (its worker processes inherit them). A task is seconds of one
 #: CPU-bound thread: the worker's statistical profiler (a stack sample every 10 ms) would only take
 #: CPU from it, and sub-second memory and system polling buy nothing at that time scale. Tasks wait
@@ -50,7 +61,25 @@ CLUSTER_CONFIG = {"distributed.worker.profile.enabled": False,
                   "distributed.scheduler.work-stealing": False,
                   "distributed.admin.tick.interval": "1s", "distributed.admin.tick.limit": "30s",
                   "distributed.worker.memory.monitor-interval": "1s",
-                  "distributed.admin.system-monitor.interval": "2s"}
+                  "distributed.admin.system-monitor.interval": "2s",
+                  "distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}
+
+
+def dask_config_yaml() -> str:
+    """:data:`CLUSTER_CONFIG` as a Dask YAML config file, for workers started by hand on a real
+    cluster (``eha-health fleet dask-config > ~/.config/dask/eha-health.yaml`` on each machine)."""
+    import yaml
+    nested: dict = {}
+    for key, value in CLUSTER_CONFIG.items():
+        *parents, leaf = key.split(".")
+        node = nested
+        for p in parents:
+            node = node.setdefault(p, {})
+        node[leaf] = value
+    return ("# eha-health fleet workers (eha_health.fleet.batch.CLUSTER_CONFIG); Dask reads it from\n"
+            "# ~/.config/dask/ or the folder named by $DASK_CONFIG\n" + yaml.safe_dump(nested, sort_keys=True))
+
+
 FAILURE_COLUMNS = ("wall_time_utc", "path", "source_hash", "actuator_id", "time_h", "reason")
 
 
@@ -97,7 +126,7 @@ def dask_client(scheduler: str | None = None, workers: int = 2, setup: bool = Tr
         if scheduler is None:
             cluster = stack.enter_context(LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                dashboard_address=None, env={"NUMBA_NUM_THREADS": "1"}, silence_logs=logging.ERROR))
+                dashboard_address=None, silence_logs=logging.ERROR))
             client = stack.enter_context(Client(cluster))
         else:
             try:
