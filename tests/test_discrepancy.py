@@ -137,6 +137,21 @@ def test_no_second_effect_invented_after_the_true_one():
     assert rep.after.values["null_bias"] == pytest.approx(1e-4, rel=0.1)
 
 
+def test_a_nested_candidate_whose_extra_knob_is_zero_gives_way_to_the_simpler_one():
+    # a plain null bias with backlash: vibration_null_shift (a null bias at rest plus a shift with
+    # the vibration) refitted to a shift 0.2 sd from zero and ranked first by its refit's path
+    # (held-out x0.020 against x0.036); with no shift it *is* valve_null_bias, which is named
+    p = load("reference").updated("controller", null_bias=3e-4)
+    faults = Faults(0.3, 0.4, 0.3)
+    rep = analyse_fdi_test(_noisy_run(p, faults, seed=120), max_effects=1, truth=dict(zip(FAULT_NAMES, faults.as_tuple())))
+    assert rep.selected == ["valve_null_bias"] and rep.candidates[0].name == "valve_null_bias"
+    assert rep.after.values["null_bias"] == pytest.approx(3e-4, rel=0.05)
+    assert max(rep.after.errors.values()) <= 0.03
+    nested = next(c for c in rep.candidates if c.name == "vibration_null_shift")
+    assert abs(nested.parameters["null_shift_per_accel"]) <= 2 * nested.std["null_shift_per_accel"]
+    assert "valve_null_bias" in nested.note and not rep.candidates[0].note
+
+
 def test_no_missing_effect_on_noise_only_data():
     for seed, faults in ((31, Faults(0.2, 0.6, 0.1)), (32, Faults(0.0, 0.0, 0.0))):
         rep = analyse_fdi_test(_noisy_run(load("reference"), faults, seed), max_effects=1)

@@ -45,19 +45,28 @@ def test_recording_knob_changes_its_channel_only_and_shares_one_simulation():
     assert np.array_equal(outs[1][:, others], outs[0][:, others])
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known miss, measured: the candidate's lag (y_m[n] = a y_m[n-1] + (1-a) y[n], the input fed through at "
-    "the current sample) is half a sample early against a bilinear first-order sensor; at the pressure "
-    "steps of the FDI test the difference is 0.254 MPa = 10.5 % of the channel's range (target 2 %). "
-    "An exact first-order-hold discretisation would match, but its inverse (recording.undo) amplifies "
-    "noise ~100x at 3 ms; to be resolved in issue 15"))
 def test_recording_lag_matches_a_first_order_sensor_of_other_numerics():
-    # the candidate's lag against a bilinear first-order sensor
+    # the candidate's lag (first-order hold) against a bilinear first-order sensor; fed through
+    # at the current sample, it was half a sample early: 0.254 MPa = 10.5 % of the range at the
+    # FDI test's pressure steps, and a lagged recording was named as skewed
     r = simulate(kind="monitor", faults=FAULTS)
     m2 = KnobModel(load("monitor"), FAULT_KNOBS, Record.from_response(r)).extended(BY_NAME["pressure_lag"].knobs)
     p_lag = m2.run([*FAULTS.as_tuple(), 3e-3])[0][:, CHANNEL_COLUMNS["pressure"]]
     y_lag = lagged(simulate(kind="monitor", faults=FAULTS), "pressure", 3e-3).pressure
     assert np.max(np.abs(p_lag - y_lag)) < 0.02 * np.max(np.abs(y_lag - y_lag[0]))
+
+
+def test_recording_lag_is_undone_without_blowing_up_the_noise():
+    # the exact inverse of the first-order hold has a pole at -0.9 (3 ms, 1 kHz): white noise x100
+    from eha_health.signals import recording
+    r = simulate(kind="monitor", faults=FAULTS)
+    y, rate = r.position, r.sample_rate
+    back = recording.undo("lag", recording.lag(y, 3e-3, rate), 3e-3, rate)
+    span = np.ptp(y)
+    assert np.sqrt(np.mean((back[5:-5] - y[5:-5]) ** 2)) < 1e-3 * span
+    assert np.sqrt(np.mean((recording.lag(y, 3e-3, rate) - y) ** 2)) > 1e-2 * span   # the lag itself is not small
+    noise = np.random.default_rng(0).standard_normal(20000)
+    assert np.std(recording.undo("lag", noise, 3e-3, rate)) < 3.0
 
 
 @pytest.fixture(scope="module")

@@ -63,6 +63,8 @@ class Candidate:
     knobs: tuple[Knob, ...]
     kind: str = IN_LOOP
     channel: str | None = None
+    #: (knob, simpler candidate): with ``knob`` at its off value this candidate *is* the simpler one
+    nests: tuple[tuple[str, str], ...] = ()
 
     def applies_to(self, channels) -> bool:
         """A recording effect needs its channel in the record."""
@@ -160,7 +162,8 @@ CANDIDATES: tuple[Candidate, ...] = (
               (Knob("null_shift_per_accel", "A s^2/m", -2e-4, 2e-4, 2e-5, 0.0, _vibration,
                     doc="null-bias change per m/s^2 of mean |acceleration|"),
                Knob("rest_null_bias", "A", -2e-3, 2e-3, 2e-4, 0.0,
-                    lambda p, v: p.updated("controller", null_bias=v), doc="null bias at rest"))),
+                    lambda p, v: p.updated("controller", null_bias=v), doc="null bias at rest")),
+              nests=(("null_shift_per_accel", "valve_null_bias"),)),
 )
 
 def _recorded(channel: str, kind: str):

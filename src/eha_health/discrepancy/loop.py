@@ -49,8 +49,8 @@ from ..physics.sequence import FDISequence
 from ..signals.datachecks import check_channel
 from ..signals.residuals import ResidualAnalysis, analyse, rest_noise_level
 from .candidates import CANDIDATES, Candidate, corrected
-from .evidence import (Result, Round, evaluate, rank, rediagnosed, rescan, retry_from_rediagnosis, screen, screened,
-                       sparse_order)
+from .evidence import (Result, Round, evaluate, prefer_simpler, rank, rediagnosed, rescan, retry_from_rediagnosis,
+                       screen, screened, sparse_order)
 from .structure import locate
 from .report import NO_MISSING_EFFECT, UNEXPLAINED, DiscrepancyReport, State
 from .settings import Settings, fdi_settings
@@ -140,6 +140,7 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
             runs += spent
             results = refitted + [r for r in results if not r.evidence.refit]
             results.sort(key=rank)
+            results = prefer_simpler(rnd, results, {c.name: c for c in remaining}.__getitem__)
         evidence += [r.evidence for r in results]
         top = results[0]
         ok = rnd.passes(top.evidence, structured)
@@ -196,7 +197,15 @@ def _round(rnd: Round, remaining: list[Candidate], anchors, say) -> list[Result]
         new.evidence.sparse_rank = top.evidence.sparse_rank
         results[0] = new
         results.sort(key=rank)
-    return results
+
+    def refit(name: str) -> Result:
+        sc = next(s for s in screens if s.candidate.name == name)
+        say(f"round {rnd.number}: refit {name} (nested in the first)")
+        new = evaluate(rnd, sc.candidate, anchors, sc)
+        new.evidence.sparse_rank = next(r.evidence.sparse_rank for r in results if r.evidence.name == name)
+        return new
+    by_name = {c.name: c for c in remaining}
+    return prefer_simpler(rnd, results, by_name.__getitem__, refit)
 
 
 def _final_fit(split: _Split, model: KnobModel, base: FitResult, n_base: int, rediagnose) -> tuple[FitResult, int]:

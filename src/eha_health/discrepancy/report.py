@@ -36,6 +36,7 @@ class CandidateEvidence:
     refit: bool = True            # False: pruned after the cheap evidence, judged at its screened point
     pruned_by: str = ""           # the evidence that pruned it
     sparse_rank: int | None = None  # order of entry in the sparse regression of the residual (1 = first)
+    note: str = ""                # why it ranks where it does when not by its own evidence (a nested, simpler candidate preferred)
 
 
 @dataclass
@@ -127,6 +128,8 @@ def format_report(rep: DiscrepancyReport, what: str = "") -> str:
         lines.append(f"   r{c.round} {c.name:20s} {c.kind:9s} dIC {c.delta_ic:9.1f}  held-out x{c.held_out_ratio:6.3f} "
                      f"(excess x{min(c.held_out_excess_ratio, 99.0):6.3f})  fit x{c.fit_ratio:6.3f}  "
                      f"projection {c.projection:5.2f}  {pars}{mark}")
+        if c.note:
+            lines.append(f"       ({c.note})")
     if rep.frequency_response:
         lines.append("  frequency response position/command (H1 over the record; bands where the command has power "
                      "and the measured coherence >= 0.9):")
