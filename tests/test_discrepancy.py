@@ -389,7 +389,7 @@ def test_real_rig_import_and_loop(tmp_path):
     p = subprocess.run(CLI + ["import", str(MTS), "--map", str(ROOT / "maps/mts_servohydraulic.yaml"),
                               "--out", str(csv)], capture_output=True, text=True, cwd=ROOT)
     assert p.returncode == 0, p.stderr
-    out = _cli_json("discrepancy", str(csv), "--json", "--max-effects", "1", timeout=900)
+    out = _cli_json("discrepancy", str(csv), "--json", timeout=900)
     assert out["mode"] == "rig"
     bag = tmp_path / "mts.mcap"     # the same record through the MCAP topic contract reads back the same
     p = subprocess.run(CLI + ["import", str(MTS), "--map", str(ROOT / "maps/mts_servohydraulic.yaml"),
@@ -414,10 +414,21 @@ def test_real_rig_import_and_loop(tmp_path):
     assert 20e-6 < out["residual_before"]["channels"]["position"]["noise_sd"] < 30e-6
     # the offset between command and position is ~85 um at rest and shrinks as the chirp speeds up:
     # a valve null that shifts with the vibration level. It is found, and it predicts the held-out
-    # part (up to 20 Hz, then rest) from the first 70 % (measured x0.66; the 50 % target is missed)
-    assert out["selected"] == ["vibration_null_shift"]
+    # part (up to 20 Hz, then rest) from the first 70 %. What is left in the time domain is within
+    # 1.5x the interference, but the held-out frequency response is not (gain low by 5 % at 19-21 Hz,
+    # many times the estimate's scatter): round 2 runs on that evidence and finds the loop's
+    # transport delay (ms: it replaces most of the valve lag), after which the held-out excess over
+    # noise is at most half of before (issue 15's rig target) and the gain error within 2 % in
+    # every coherent band
+    assert out["selected"] == ["vibration_null_shift", "sensor_delay"]
+    fe = out["frequency_evidence"]
+    assert [f["gates"] for f in fe] == ["time domain", "frequency response"] and fe[1]["significant"]
+    delay = next(c for c in out["candidates"] if c["round"] == 2 and c["selected"])
+    assert delay["frequency_ratio"] <= 0.5 and delay["delta_ic"] < 0
     a = out["after"]["values"]
-    assert out["after"]["rms_held_out"]["position"] <= 0.75 * b["rms_held_out"]["position"]
+    assert 1e-3 < a["delay"] < 5e-3
+    assert out["after"]["excess_held_out"]["position"] <= 0.5 * b["excess_held_out"]["position"]
+    assert all(abs(band["gain_ratio"]["after"] - 1.0) <= 0.02 for band in out["frequency_response"])
     # physically plausible: x - x_cmd = i_null / kp at rest, -85 um measured; a shift of the order
     # of 10 um per m/s^2 of mean |acceleration| (the chirp reaches ~5 m/s^2), toward the command
     assert -120e-6 < a["rest_null_bias"] / a["loop_gain"] < -50e-6

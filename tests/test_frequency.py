@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from eha_health.signals.frequency import compare, estimate
+from eha_health.signals.frequency import compare, estimate, response_error
 
 FS = 1000.0
 
@@ -53,3 +53,20 @@ def test_a_missing_delay_shows_as_phase_error_and_no_gain_error():
 def test_bad_input_is_named(u, y, expect):
     with pytest.raises(ValueError, match=expect):
         estimate(u, y, FS)
+
+
+def test_response_error_is_structure_only_beyond_the_estimates_own_scatter():
+    # measured: a first-order lag with output noise (coherence 0.9-0.99 over the kept band). The
+    # right model's error power is the estimate's own scatter, as (1 - g2) / (n_d g2) predicts; a
+    # 15 % gain error adds its 0.0225 on top and is structure
+    u, rng = _broadband()
+    a = np.exp(-2 * np.pi * 8.0 / FS)
+    clean = lfilter([1 - a], [1, -a], u)
+    y = clean + 0.25 * np.std(clean) * rng.standard_normal(len(u))
+    right, low = response_error(u, y, clean, FS), response_error(u, y, 0.85 * clean, FS)
+    assert len(right.f) > 20 and np.all(right.sigma > 0)
+    assert 0.5 < right.power / right.noise_power < 2.0 and not right.significant()
+    assert low.power == pytest.approx(0.0225 + right.power, rel=0.15) and low.significant()
+    assert abs(np.median(low.rel.real) + 0.15) < 0.02      # the relative error is -15 % bin by bin
+    with pytest.raises(ValueError, match="NaN"):
+        response_error(u, y, np.r_[clean[:-1], np.nan], FS)

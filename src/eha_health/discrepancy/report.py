@@ -37,6 +37,7 @@ class CandidateEvidence:
     pruned_by: str = ""           # the evidence that pruned it
     sparse_rank: int | None = None  # order of entry in the sparse regression of the residual (1 = first)
     note: str = ""                # why it ranks where it does when not by its own evidence (a nested, simpler candidate preferred)
+    frequency_ratio: float | None = None  # rig records: held-out position/command response error power, with / without it
 
 
 @dataclass
@@ -78,6 +79,9 @@ class DiscrepancyReport:
     unexplained: dict | None = None
     data_checks: list[str] = field(default_factory=list)   # quantisation, clipping, interference
     pruned: list[str] = field(default_factory=list)        # candidates judged on screening evidence only
+    # rig records, per round: the held-out frequency-response error of the model as it stands
+    # (power, the estimate's own scatter, and whether it is structure) and which gates the round used
+    frequency_evidence: list[dict] = field(default_factory=list)
 
     def as_dict(self) -> dict:
         return {"verdict": self.verdict, "selected": self.selected,
@@ -87,7 +91,7 @@ class DiscrepancyReport:
                 "residual_after": self.residual_after.as_dict(),
                 "split_time_s": self.split_time_s, "wall_time_s": self.wall_time_s, "runs": self.runs,
                 "frequency_response": self.frequency_response, "unexplained": self.unexplained,
-                "data_checks": self.data_checks, "pruned": self.pruned}
+                "data_checks": self.data_checks, "pruned": self.pruned, "frequency_evidence": self.frequency_evidence}
 
 
 def format_report(rep: DiscrepancyReport, what: str = "") -> str:
@@ -127,9 +131,14 @@ def format_report(rep: DiscrepancyReport, what: str = "") -> str:
         mark = " <- selected" if c.selected else ("" if c.refit else " (screened only)")
         lines.append(f"   r{c.round} {c.name:20s} {c.kind:9s} dIC {c.delta_ic:9.1f}  held-out x{c.held_out_ratio:6.3f} "
                      f"(excess x{min(c.held_out_excess_ratio, 99.0):6.3f})  fit x{c.fit_ratio:6.3f}  "
-                     f"projection {c.projection:5.2f}  {pars}{mark}")
+                     f"projection {c.projection:5.2f}  " +
+                     (f"response x{c.frequency_ratio:6.3f}  " if c.frequency_ratio is not None else "") + f"{pars}{mark}")
         if c.note:
             lines.append(f"       ({c.note})")
+    for fe in rep.frequency_evidence:
+        lines.append(f"  round {fe['round']}: held-out position/command response error power {fe['error_power']:.3g} "
+                     f"({fe['error_power'] / max(fe['noise_power'], 1e-300):.1f}x the estimate's scatter"
+                     f"{': structure' if fe['significant'] else ''}); gates: {fe['gates']}")
     if rep.frequency_response:
         lines.append("  frequency response position/command (H1 over the record; bands where the command has power "
                      "and the measured coherence >= 0.9):")

@@ -69,7 +69,8 @@ def analyse_rig(response, max_effects: int = 2, fit_fraction: float = 0.7, progr
     """
     rec = rig_record(response)
     # a rig record is long (one run ~0.1 s): a coarser grid and one local fit per candidate
-    settings = Settings(fit_fraction=fit_fraction, grid=grid, scan=6, starts=1, max_nfev=20, rest_noise=True)
+    settings = Settings(fit_fraction=fit_fraction, grid=grid, scan=6, starts=1, max_nfev=20, rest_noise=True,
+                        frequency_evidence=True)
     x0 = np.array([k.typical for k in RIG_KNOBS])
     rep = run_loop(rec, rig_params(), RIG_KNOBS, x0, quantile_segments(rec), RIG_CANDIDATES, max_effects,
                    settings, None, "fit", progress)

@@ -26,6 +26,8 @@ class Settings:
     effect_floor: dict = field(default_factory=dict)  # {candidate: per-channel floor} once it is added
     rest_noise: bool = False           # noise also measured where the command rests (a rig's coloured
                                        # interference; residuals.rest_noise_level)
+    frequency_evidence: bool = False   # a broadband record (a rig's chirp): the held-out position/command
+                                       # response error is evidence too (signals.frequency.response_error)
 
     def floor_with(self, effects) -> dict[str, float]:
         """Per-channel floor [SI] of the model holding ``effects``: its largest known model-form error."""

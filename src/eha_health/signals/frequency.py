@@ -108,3 +108,43 @@ def compare(command, measured, models: dict[str, np.ndarray], fs: float, n_bands
                "phase_error_deg": {k: float(np.degrees(np.mean(e[sel]))) for k, e in err.items()}}
         out.append(row)
     return out
+
+
+@dataclass(frozen=True)
+class ResponseError:
+    """A model's H1 against the measured one on the measured response's kept bins.
+
+    ``rel`` = (H_model - H_meas) / H_meas per bin; ``sigma`` = the relative standard error of the
+    measured complex H1, sqrt((1 - g2) / (n_d g2)) with n_d the Welch segment count (Bendat &
+    Piersol, Random Data, 4th ed., sec. 9.2: each of gain and phase has half this variance).
+    """
+    f: np.ndarray          # Hz
+    rel: np.ndarray        # complex relative error [-]
+    sigma: np.ndarray      # relative standard error of the measured H1 [-]
+
+    @property
+    def power(self) -> float:
+        """Mean squared relative error over the bins [-]."""
+        return float(np.mean(np.abs(self.rel) ** 2)) if len(self.f) else 0.0
+
+    @property
+    def noise_power(self) -> float:
+        """What the estimate's own scatter gives to :attr:`power` when the model is right [-]."""
+        return float(np.mean(self.sigma ** 2)) if len(self.f) else 0.0
+
+    def significant(self, factor: float = 4.0) -> bool:
+        """The error is structure: its power exceeds ``factor`` times the estimate's scatter."""
+        return bool(len(self.f)) and self.power > factor * self.noise_power
+
+
+def response_error(command, measured, model, fs: float, min_coherence: float = 0.9) -> ResponseError:
+    """:class:`ResponseError` of ``model``'s output over ``command`` against ``measured``'s, sampled
+    at ``fs`` [Hz], on the bins where the command has power and the measured coherence is high."""
+    u, y = _check(command, measured)
+    ym = _check(u, model)[1]
+    n = _segment(len(u))
+    meas, keep, Puu = _estimate(u, y, fs, n, min_coherence, 1e-3)
+    Hm = csd(u, ym, fs=fs, nperseg=n)[1][keep] / Puu[keep]
+    segments = max((len(u) - n // 2) // (n // 2), 1)     # Welch's count, Hann windows at 50 % overlap
+    g2 = meas.coherence
+    return ResponseError(meas.f, Hm / meas.H - 1.0, np.sqrt((1.0 - g2) / (segments * g2)))
