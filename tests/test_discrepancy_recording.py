@@ -124,6 +124,7 @@ def test_two_effects_at_once_pressure_offset_with_an_in_loop_delay():
 
 
 def test_data_checks_name_quantisation_clipping_and_interference():
+    # check_channel(name, recording, model - recording, noise, command, rate); y is the model here
     r = _run()
     t, y = r.t, r.pressure
     q = 2e5
@@ -131,7 +132,23 @@ def test_data_checks_name_quantisation_clipping_and_interference():
     clipped = np.clip(y, None, np.percentile(y, 97))
     hum = 2e4 * np.sin(2 * np.pi * 50.0 * t)
     cmd = r.command
-    assert any("quantised in steps of 2e+05" in s for s in check_channel("pressure", quant, quant - y, 2e4, cmd, 1e3))
-    assert any("pinned" in s for s in check_channel("pressure", clipped, clipped - y, 2e4, cmd, 1e3))
-    assert any("interference at 50.0 Hz" in s for s in check_channel("pressure", y + hum, hum, 2e4, cmd, 1e3))
+    assert any("quantised in steps of 2e+05" in s for s in check_channel("pressure", quant, y - quant, 2e4, cmd, 1e3))
+    assert any("pinned" in s for s in check_channel("pressure", clipped, y - clipped, 2e4, cmd, 1e3))
+    # pinned where the model is pinned too: the actuator's own limit, not the transducer's
+    assert not any("pinned" in s for s in check_channel("pressure", clipped, 0.0 * y, 2e4, cmd, 1e3))
+    assert any("interference at 50.0 Hz" in s for s in check_channel("pressure", y + hum, -hum, 2e4, cmd, 1e3))
     assert check_channel("pressure", y, 2e4 * np.random.default_rng(0).standard_normal(len(y)), 2e4, cmd, 1e3) == []
+
+
+def test_data_checks_name_spikes_and_an_inverted_sign_and_not_motion():
+    r = _run()
+    y, cmd, rng = r.pressure, r.command, np.random.default_rng(1)
+    noisy = y + 2e4 * rng.standard_normal(len(y))
+    glitched = noisy.copy()
+    glitched[1000::2000] += 3e6                         # one-sample acquisition glitches
+    found = [s for s in check_channel("pressure", glitched, y - glitched, 2e4, cmd, 1e3) if "spike" in s]
+    assert len(found) == 1 and f"{len(range(1000, len(y), 2000))} isolated" in found[0] and "sample 1000" in found[0]
+    # a step the model has too is motion, not a spike; noise alone has none
+    assert not any("spike" in s for s in check_channel("pressure", noisy, y - noisy, 2e4, cmd, 1e3))
+    assert any("sign inverted" in s for s in check_channel("pressure", -noisy, y + noisy, 2e4, cmd, 1e3))
+    assert not any("sign inverted" in s for s in check_channel("pressure", noisy, y - noisy, 2e4, cmd, 1e3))
