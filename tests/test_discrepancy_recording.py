@@ -100,6 +100,34 @@ def test_altered_recording_is_found_sized_and_the_faults_re_identified(cases, na
     assert set(rep.pruned) == {c.name for c in pruned}
 
 
+@pytest.mark.parametrize("alter,cand,value", [
+    (lambda r: scaled(r, "velocity", 0.03), "velocity_scale", 0.03),
+    (lambda r: lagged(r, "velocity", 3e-3), "velocity_lag", 3e-3),
+])
+def test_velocity_recording_effects_are_found_on_the_kinematic_evidence(alter, cand, value):
+    # the velocity weighs 0.05 in the model residual: a +3 % velocity scale failed every residual
+    # gate (unexplained), a 3 ms velocity lag was named velocity_skew. The recorded velocity against
+    # the recorded position's derivative needs no model and tells them
+    faults = Faults(0.0, 0.0, 0.0)
+    rep = analyse_fdi_test(alter(_run(seed=13, faults=faults)), max_effects=1, truth=faults.as_dict())
+    assert rep.selected == [cand] and rep.candidates[0].name == cand
+    top = rep.candidates[0]
+    assert top.kinematic_ratio <= 0.1
+    ev = {c.name: c for c in rep.candidates}
+    if cand == "velocity_scale":
+        # the model residual alone does not pass it: the kinematic evidence does, and says so
+        assert top.held_out_excess_ratio > 0.5 or top.fit_ratio > 0.8
+        assert "kinematic evidence" in top.note
+    else:
+        # a lag and a skew of the velocity look alike in the model residual, not kinematically
+        assert top.kinematic_ratio < ev["velocity_skew"].kinematic_ratio / 3
+    assert rep.after.values[cand] == pytest.approx(value, rel=0.1)
+    assert max(rep.after.errors.values()) <= 0.03
+    assert rep.after.excess_held_out["velocity"] <= rep.before.excess_held_out["velocity"] / 3
+    # only velocity recording effects carry the kinematic figure
+    assert all((c.kinematic_ratio is None) == (c.channel != "velocity") for c in rep.candidates)
+
+
 def test_in_loop_and_recording_versions_are_told_apart(cases):
     # a late recording is not a late feedback: the in-loop delay would move the actuator, and the
     # other channels do not show that

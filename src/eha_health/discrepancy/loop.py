@@ -52,9 +52,10 @@ from ..physics.params import ModelParams, load
 from ..physics.sequence import FDISequence
 from ..signals.datachecks import check_channel
 from ..signals.frequency import response_error
+from ..signals.kinematics import kinematics
 from ..signals.residuals import ResidualAnalysis, analyse, rest_noise_level
-from .candidates import CANDIDATES, Candidate, corrected
-from .evidence import (FREQUENCY, Result, Round, evaluate, prefer_simpler, rank, rediagnosed, rescan, retry_from_rediagnosis,
+from .candidates import CANDIDATES, RECORDING_CHAIN, Candidate, corrected
+from .evidence import (FREQUENCY, Result, Round, evaluate, prefer_consistent, prefer_simpler, rank, rediagnosed, rescan, retry_from_rediagnosis,
                        screen, screened, sparse_order)
 from .structure import locate
 from .report import NO_MISSING_EFFECT, UNEXPLAINED, DiscrepancyReport, State
@@ -79,6 +80,9 @@ class _Split:
         rec = self.record
         self.noise = ({c: rest_noise_level(y, rec.command, rec.sample_rate) for c, y in rec.channels.items()}
                       if self.settings.rest_noise else None)
+        # the recorded velocity against the recorded position's derivative (model-free evidence)
+        self.kinematics = (kinematics(rec.channels["position"], rec.channels["velocity"], rec.command, rec.sample_rate)
+                           if {"position", "velocity"} <= set(rec.channels) else None)
         self.frequency = None
         held = ~fit_mask
         if self.settings.frequency_evidence and "position" in rec.channels and held.sum() >= 256:
@@ -148,6 +152,7 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
     evidence, selected, runs, frequency = [], [], 0, []
     out_base = base.output      # the fit-part model over the whole record
     remaining = list(candidates)
+    by_name = {c.name: c for c in candidates}
     for number in range(1, max_effects + 1):
         # a broadband record's held-out frequency response can show structure that noise hides in
         # the time domain (measured on the MTS rig: a -4.4 % gain error at 19-21 Hz, 100x the
@@ -161,8 +166,12 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
         # only runs while the residual is still above the floor of the model as it now stands
         if not remaining or (number > 1 and not structured):
             break
+        # the kinematic evidence reads the raw recordings: it holds until an effect on a recorded
+        # position or velocity has been selected (then the recordings are no longer what the model fits)
+        kin = split.kinematics if not any(by_name[e].kind == RECORDING_CHAIN and by_name[e].channel in
+                                          ("position", "velocity") for e in selected) else None
         rnd = Round(number, model, base, split.r_fit, r_held, out_base, settings, held_noise, tuple(selected),
-                    structured, split.frequency)
+                    structured, split.frequency, kin)
         anchors = [base.x] if number > 1 else [base.x, before.x]
         results = _round(rnd, remaining, anchors, say)
         runs += sum(r.model.runs for r in results)
@@ -173,6 +182,7 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
             results = refitted + [r for r in results if not r.evidence.refit]
             results.sort(key=rank)
             results = prefer_simpler(rnd, results, {c.name: c for c in remaining}.__getitem__)
+            results = prefer_consistent(rnd, results)
         evidence += [r.evidence for r in results]
         top = results[0]
         ok = rnd.passes(top.evidence, structured)
@@ -252,7 +262,7 @@ def _round(rnd: Round, remaining: list[Candidate], anchors, say) -> list[Result]
         new.evidence.sparse_rank = next(r.evidence.sparse_rank for r in results if r.evidence.name == name)
         return new
     by_name = {c.name: c for c in remaining}
-    return prefer_simpler(rnd, results, by_name.__getitem__, refit)
+    return prefer_consistent(rnd, prefer_simpler(rnd, results, by_name.__getitem__, refit), refit)
 
 
 def _final_fit(split: _Split, model: KnobModel, base: FitResult, n_base: int, rediagnose) -> tuple[FitResult, int]:

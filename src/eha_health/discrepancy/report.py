@@ -38,6 +38,8 @@ class CandidateEvidence:
     sparse_rank: int | None = None  # order of entry in the sparse regression of the residual (1 = first)
     note: str = ""                # why it ranks where it does when not by its own evidence (a nested, simpler candidate preferred)
     frequency_ratio: float | None = None  # rig records: held-out position/command response error power, with / without it
+    kinematic_ratio: float | None = None  # a velocity recording effect: mismatch of the recorded velocity and the
+                                          # recorded position's derivative, with / without it (signals.kinematics)
 
 
 @dataclass
@@ -132,7 +134,8 @@ def format_report(rep: DiscrepancyReport, what: str = "") -> str:
         lines.append(f"   r{c.round} {c.name:20s} {c.kind:9s} dIC {c.delta_ic:9.1f}  held-out x{c.held_out_ratio:6.3f} "
                      f"(excess x{min(c.held_out_excess_ratio, 99.0):6.3f})  fit x{c.fit_ratio:6.3f}  "
                      f"projection {c.projection:5.2f}  " +
-                     (f"response x{c.frequency_ratio:6.3f}  " if c.frequency_ratio is not None else "") + f"{pars}{mark}")
+                     (f"response x{c.frequency_ratio:6.3f}  " if c.frequency_ratio is not None else "") +
+                     (f"kinematic x{c.kinematic_ratio:6.3f}  " if c.kinematic_ratio is not None else "") + f"{pars}{mark}")
         if c.note:
             lines.append(f"       ({c.note})")
     for fe in rep.frequency_evidence:
