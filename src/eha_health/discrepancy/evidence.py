@@ -67,7 +67,7 @@ class Round:
         self.n_eff = n_eff(self.r_held, r)
         self.n_fit = n_eff(self.r_fit, self.base.residual)
         self.frequency_base = self.frequency(self.out_base) if self.frequency is not None else None
-        self.kinematic_base = self.kinematics.mismatch() if self.kinematics is not None else None
+        self.kinematic_base = self.kinematics.identity_mismatch if self.kinematics is not None else None
 
     def passes(self, ev: CandidateEvidence, structured: bool | str) -> bool:
         """The gates of a selection. Time-domain structure: dIC < 0, held-out excess over noise and
@@ -295,7 +295,7 @@ def _frequency_ratio(rnd: Round, out: np.ndarray) -> float | None:
     """Held-out response error power with / without the candidate (None: no frequency evidence)."""
     if rnd.frequency_base is None or rnd.frequency_base.power <= 0.0:
         return None
-    return rnd.frequency(out).power / max(rnd.frequency_base.power, 1e-300)
+    return rnd.frequency(out).power / rnd.frequency_base.power
 
 
 def screened(rnd: Round, sc: Screen, reason: str) -> Result:

@@ -181,7 +181,7 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
             runs += spent
             results = refitted + [r for r in results if not r.evidence.refit]
             results.sort(key=rank)
-            results = prefer_simpler(rnd, results, {c.name: c for c in remaining}.__getitem__)
+            results = prefer_simpler(rnd, results, by_name.__getitem__)
             results = prefer_consistent(rnd, results)
         evidence += [r.evidence for r in results]
         top = results[0]

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .residuals import spectrum_peak
+from .residuals import noise_level, spectrum_peak
 
 
 def quantisation_step(y: np.ndarray) -> float:
@@ -68,21 +68,13 @@ def spikes(y: np.ndarray, model: np.ndarray, noise_sd: float, step: float = 0.0,
         return np.zeros(0, int)
     d2 = y[1:-1] - 0.5 * (y[:-2] + y[2:])
     m2 = m[1:-1] - 0.5 * (m[:-2] + m[2:])
-    robust = 1.4826 * float(np.median(np.abs(d2 - np.median(d2))))
+    robust = noise_level(y) * np.sqrt(1.5)     # d2 of white noise of sd s has sd s sqrt(1.5)
     big = np.abs(d2) > max(sigmas * robust, 5.0 * noise_sd, 3.0 * step, range_share * float(np.ptp(y)), 1e-300)
     big &= np.abs(m2) < np.abs(d2) / 3.0
     i = np.flatnonzero(big[1:-1]) + 1          # interior of d2: both neighbours exist
     lone = (np.abs(d2[i - 1] + 0.5 * d2[i]) < 0.2 * np.abs(d2[i])) & \
            (np.abs(d2[i + 1] + 0.5 * d2[i]) < 0.2 * np.abs(d2[i]))
     return i[lone] + 1
-
-
-def correlation(y: np.ndarray, model: np.ndarray) -> float:
-    """Correlation coefficient of the detrended recording and model (0 when either is constant)."""
-    a = np.asarray(y, float) - np.mean(y)
-    b = np.asarray(model, float) - np.mean(model)
-    den = float(np.sqrt((a @ a) * (b @ b)))
-    return float(a @ b) / den if den > 0 else 0.0
 
 
 def command_band(command: np.ndarray, rate: float, power: float = 0.99) -> float:
@@ -118,7 +110,8 @@ def check_channel(name: str, y: np.ndarray, residual: np.ndarray, noise_sd: floa
     if len(k):
         out.append(f"{name}: {len(k)} isolated one-sample spike(s), largest {np.max(np.abs(residual[k])):.3g} "
                    f"from the model, first at sample {k[0]} (acquisition glitches: not motion)")
-    r = correlation(y, model)
+    with np.errstate(invalid="ignore", divide="ignore"):     # a constant channel: nan, no finding
+        r = float(np.corrcoef(y, model)[0, 1])
     if r < -0.5:
         out.append(f"{name}: the recording is anticorrelated with the model (correlation {r:.2f}): "
                    f"a sign inverted in the acquisition?")

@@ -33,12 +33,21 @@ class Kinematics:
     velocity: np.ndarray       # the recorded velocity [m/s]
     rate: float                # Hz
     band_hz: float
-    noise_power: float         # mismatch power of the channels' white noise alone [(m/s)^2]
+    noise_position: float      # white-noise standard deviation of the position recording [m]
+    noise_velocity: float      # ... of the velocity recording [m/s]
 
     def __post_init__(self):
         self._sos = butter(4, self.band_hz, fs=self.rate, output="sos")
         self._edge = int(round(EDGE_S * self.rate))
         self._v = self._filter(self.velocity)
+        # the pipeline's impulse responses give what white noise of each channel leaves
+        imp = np.zeros(8192)
+        imp[len(imp) // 2] = 1.0
+        hx, hv = self._filter(np.gradient(imp, 1.0 / self.rate)), self._filter(imp)
+        #: mismatch power of the channels' white noise alone [(m/s)^2]
+        self.noise_power = self.noise_position ** 2 * float(hx @ hx) + self.noise_velocity ** 2 * float(hv @ hv)
+        #: mismatch power of the recordings as they are (v against dx/dt) [(m/s)^2]
+        self.identity_mismatch = self.mismatch()
 
     def _filter(self, y: np.ndarray) -> np.ndarray:
         return sosfiltfilt(self._sos, y)
@@ -53,7 +62,7 @@ class Kinematics:
     @property
     def significant(self) -> bool:
         """The recordings disagree beyond 4x what their noise explains."""
-        return self.mismatch() > 4.0 * self.noise_power
+        return self.identity_mismatch > 4.0 * self.noise_power
 
 
 def kinematics(position: np.ndarray, velocity: np.ndarray, command: np.ndarray, rate: float) -> Kinematics | None:
@@ -62,10 +71,4 @@ def kinematics(position: np.ndarray, velocity: np.ndarray, command: np.ndarray, 
     if len(x) < rate or len(x) != len(v) or not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
         return None
     band = float(np.clip(2.0 * command_band(command, rate), 5.0, 0.4 * rate))
-    sos = butter(4, band, fs=rate, output="sos")
-    n = 8192
-    imp = np.zeros(n)
-    imp[n // 2] = 1.0
-    hx, hv = sosfiltfilt(sos, np.gradient(imp, 1.0 / rate)), sosfiltfilt(sos, imp)
-    noise = noise_level(x) ** 2 * float(hx @ hx) + noise_level(v) ** 2 * float(hv @ hv)
-    return Kinematics(np.gradient(x, 1.0 / rate), v, rate, band, noise)
+    return Kinematics(np.gradient(x, 1.0 / rate), v, rate, band, noise_level(x), noise_level(v))
