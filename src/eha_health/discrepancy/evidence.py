@@ -60,13 +60,15 @@ class Round:
     structured: bool | str = True
     frequency: Callable[[np.ndarray], ResponseError] | None = None
     kinematics: Kinematics | None = None   # the recorded velocity against the recorded position's derivative
+    frequency_base: ResponseError | None = None   # ``frequency`` of ``out_base`` (computed when not given)
 
     def __post_init__(self):
         r = self.r_held(self.out_base)
         self.rss_held_base = float(r @ r)
         self.n_eff = n_eff(self.r_held, r)
         self.n_fit = n_eff(self.r_fit, self.base.residual)
-        self.frequency_base = self.frequency(self.out_base) if self.frequency is not None else None
+        if self.frequency_base is None and self.frequency is not None:
+            self.frequency_base = self.frequency(self.out_base)
         self.kinematic_base = self.kinematics.identity_mismatch if self.kinematics is not None else None
 
     def passes(self, ev: CandidateEvidence, structured: bool | str) -> bool:

@@ -51,7 +51,7 @@ from ..identification.uncertainty import autocorr_inflation
 from ..physics.params import ModelParams, load
 from ..physics.sequence import FDISequence
 from ..signals.datachecks import check_channel
-from ..signals.frequency import response_error
+from ..signals.frequency import ResponseError, response_error
 from ..signals.kinematics import kinematics
 from ..signals.residuals import ResidualAnalysis, analyse, rest_noise_level
 from .candidates import CANDIDATES, RECORDING_CHAIN, Candidate, corrected
@@ -89,17 +89,19 @@ class _Split:
             u, y, col = rec.command[held], rec.channels["position"][held], CHANNEL_COLUMNS["position"]
             self.frequency = lambda out: response_error(u, y, out[held, col], rec.sample_rate)
 
-    def structure(self, time_structured: bool, out: np.ndarray, number: int) -> tuple[bool | str, dict | None]:
+    def structure(self, time_structured: bool, out: np.ndarray,
+                  number: int) -> tuple[bool | str, ResponseError | None, dict | None]:
         """Which gates a round uses (``Round.structured``): True on a structured time-domain
         residual, else :data:`~.evidence.FREQUENCY` when the held-out frequency response of ``out``
-        (the model fitted on the fit part) shows structure, else False; and that evidence."""
+        (the model fitted on the fit part) shows structure, else False; that response error (the
+        round's reference), and its summary for the report."""
         if self.frequency is None:
-            return time_structured, None
+            return time_structured, None, None
         fe = self.frequency(out)
         mode = True if time_structured else FREQUENCY if fe.significant() else False
-        return mode, {"round": number, "error_power": fe.power, "noise_power": fe.noise_power,
-                      "significant": fe.significant(),
-                      "gates": "time domain" if mode is True else "frequency response" if mode else "none"}
+        return mode, fe, {"round": number, "error_power": fe.power, "noise_power": fe.noise_power,
+                          "significant": fe.significant(),
+                          "gates": "time domain" if mode is True else "frequency response" if mode else "none"}
 
     def channels(self, out: np.ndarray) -> dict[str, np.ndarray]:
         return {c: out[:, CHANNEL_COLUMNS[c]].copy() for c in self.record.channels}
@@ -157,7 +159,7 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
         # a broadband record's held-out frequency response can show structure that noise hides in
         # the time domain (measured on the MTS rig: a -4.4 % gain error at 19-21 Hz, 100x the
         # estimate's scatter, under a residual within 1.5x the logger's interference)
-        structured, fe = split.structure(time_structured, out_base, number)
+        structured, response, fe = split.structure(time_structured, out_base, number)
         if fe is not None:
             frequency.append(fe)
             say(f"round {number}: held-out response error power {fe['error_power']:.3g} "
@@ -171,7 +173,7 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
         kin = split.kinematics if not any(by_name[e].kind == RECORDING_CHAIN and by_name[e].channel in
                                           ("position", "velocity") for e in selected) else None
         rnd = Round(number, model, base, split.r_fit, r_held, out_base, settings, held_noise, tuple(selected),
-                    structured, split.frequency, kin)
+                    structured, split.frequency, kin, response)
         anchors = [base.x] if number > 1 else [base.x, before.x]
         results = _round(rnd, remaining, anchors, say)
         runs += sum(r.model.runs for r in results)
