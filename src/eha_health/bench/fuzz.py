@@ -351,27 +351,16 @@ class HistoryTarget:
 
 # ----------------------------------------------------------------------------- node messages
 class MessagesTarget:
-    """Hostile message streams into the real monitor and plant node callbacks (CDR, as DDS delivers)."""
+    """Hostile message streams into the real monitor and plant node callbacks (CDR, as DDS
+    delivers; :class:`~..ros.harness.NodeHarness`)."""
     name = "messages"
 
     def __init__(self, tmp: Path):
-        import rclpy
-        from rclpy.logging import LoggingSeverity
-        from rclpy.parameter import Parameter
-        from rclpy.signals import SignalHandlerOptions
-
-        from ..ros.monitor import MonitorNode
-        from ..ros.plant import PlantNode
-        self.ctx = rclpy.Context()
-        rclpy.init(context=self.ctx, signal_handler_options=SignalHandlerOptions.NO)
-        self.monitor = MonitorNode(context=self.ctx, parameter_overrides=[Parameter("log_path", value="")])
-        self.plant = PlantNode(context=self.ctx)
-        for n in (self.monitor, self.plant):    # thousands of refusals: the counts are the report
-            n.get_logger().set_level(LoggingSeverity.FATAL)
+        from ..ros.harness import NodeHarness
+        self.nodes = NodeHarness()
 
     def close(self) -> None:
-        from ..ros import teardown
-        teardown(None, [self.monitor, self.plant], self.ctx)
+        self.nodes.close()
 
     def strategy(self):
         from hypothesis import strategies as st
@@ -390,44 +379,22 @@ class MessagesTarget:
                       st.binary(max_size=64)))
         return st.lists(msg, min_size=1, max_size=60)
 
-    def _msg(self, m):
-        from builtin_interfaces.msg import Time
-        from sensor_msgs.msg import FluidPressure, JointState
-        from std_msgs.msg import Header
-        topic, ns = m[0], m[1]
-        t = Time(sec=int(ns // 10**9) % 2**31, nanosec=int(ns % 10**9))
-        if topic == "eha/pressure":
-            p = FluidPressure(fluid_pressure=m[2])
-            p.header.stamp = t
-            return p
-        if topic == "eha/test_window":
-            return Header(stamp=t, frame_id=m[2])
-        js = JointState(position=m[2], velocity=m[3], effort=m[4])
-        js.header.stamp = t
-        return js
-
     def check(self, case, tally: Tally) -> None:
-        from rclpy.serialization import serialize_message
-        from msg_bridge import contract as C
-        mon, plant = self.monitor, self.plant
-        subs = {s.topic_name.lstrip("/"): s for s in mon._subs}
+        from ..ros.harness import message
+        nodes = self.nodes
+        mon = nodes.monitor
         n_verdicts = mon.verdicts
         for m in case:
             if m[0] == "bytes":
-                topic, data = m[1], m[2]
+                topic, data, msg = m[1], m[2], None
             else:
-                topic, data = m[0], serialize_message(self._msg(m))
+                topic, msg = m[0], message(*m)
+                data = nodes.serialize(msg)
             try:
-                subs[topic].callback(data)
-                if topic == C.COMMAND.name and m[0] != "bytes":
-                    plant._on_command(self._msg(m))
+                nodes.feed(topic, data, msg)
             except Exception as e:
                 raise AssertionError(f"{topic}: the node let {type(e).__name__} out: {e}") from e
-        # every window with both marks is taken now: refused with a reason, or diagnosed
-        for w in mon.windows.ready(float("inf"), 0.0):
-            mon._start_diagnosis(w)
-        mon._worker.submit(lambda: None).result(timeout=DEADLINE_MS / 1000)
-        mon._poll()
+        nodes.settle(DEADLINE_MS / 1000)
         new = min(mon.verdicts - n_verdicts, len(mon.results))
         for r in list(mon.results)[len(mon.results) - new:]:
             if r["diagnosis"] is None and not _one_line(r["message"]):
