@@ -9,7 +9,6 @@ import signal
 import sqlite3
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import psutil
@@ -22,6 +21,7 @@ from eha_health.cli import main as cli_main  # noqa: E402
 from eha_health.fleet import (FleetError, diagnose_fleet, failures_path, find_recordings,  # noqa: E402
                               read_manifest)
 from eha_health.fleet.batch import dask_client  # noqa: E402
+from waiting import wait_until  # noqa: E402
 from eha_health.fleet.recordings import Recording, complete_identity  # noqa: E402
 from eha_health.prognostics.store import HistoryStore, sha256_file  # noqa: E402
 
@@ -136,16 +136,6 @@ def test_fleet_diagnose_on_a_local_cluster_is_idempotent_and_logs_failures(bags,
     assert len(_rows(db)) == 4
 
 
-def _wait(cond, deadline_s: float, what: str):
-    t_end = time.monotonic() + deadline_s
-    while time.monotonic() < t_end:
-        v = cond()
-        if v:
-            return v
-        time.sleep(0.2)
-    raise AssertionError(f"timed out after {deadline_s:.0f} s waiting for {what}")
-
-
 def _count(db: Path) -> int:
     if not db.is_file():
         return 0
@@ -167,7 +157,7 @@ def test_a_client_killed_mid_batch_resumes_with_no_duplicate_and_no_lost_row(cli
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     started = []
     try:
-        _wait(lambda: _count(db) >= 2, 600, "the killed client's first stored rows")
+        wait_until(lambda: _count(db) >= 2, 600, "the killed client's first stored rows", {"client": proc})
         started = psutil.Process(proc.pid).children(recursive=True)
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=60)
