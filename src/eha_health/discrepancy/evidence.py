@@ -24,6 +24,7 @@ import numpy as np
 
 from ..identification.knobs import Knob
 from ..identification.local import least_squares
+from ..identification.concurrency import concurrently
 from ..identification.problem import KnobModel, Problem
 from ..identification.residual import Residual
 from ..identification.result import FitResult
@@ -422,8 +423,8 @@ def retry_from_rediagnosis(rnd: Round, results: list[Result], candidates, anchor
     """
     by_name = {c.name: c for c in candidates}
     nb = len(rnd.base.x)
-    out, runs = [], 0
-    for res in results:
+
+    def retry(res: Result) -> tuple[Result, int]:
         cand = by_name[res.evidence.name]
         say(f"round {rnd.number}: {cand.name} -- base re-identified with it in the model")
         # the probe: an in-loop knob at its typical value; a recording effect at its refitted size
@@ -431,14 +432,16 @@ def retry_from_rediagnosis(rnd: Round, results: list[Result], candidates, anchor
         k0 = cand.knobs[0]
         probe = [res.evidence.parameters[k0.name] if k0.recording else k0.typical] + [k.off for k in cand.knobs[1:]]
         x, spent = rediagnosed(res.model, np.concatenate([rnd.base.x, probe]), n_base, rediagnose)
-        runs += spent + 1
         if rnd.r_fit.cost(res.model.run(x)[0]) > rnd.settings.fit_ratio * rnd.base.cost:
-            out.append(res)
-            continue
+            return res, spent + 1
         new = evaluate(rnd, cand, list(anchors) + [x[:nb]])
-        runs += new.model.runs
-        out.append(new if rank(new) < rank(res) else res)
-    return out, runs
+        return (new if rank(new) < rank(res) else res), spent + 1 + new.model.runs
+
+    # the candidates' retries are independent: one thread each (the model runs release the GIL),
+    # the best fits first, as they are the ones that pass the probe and pay a refit
+    order = sorted(range(len(results)), key=lambda i: results[i].evidence.fit_ratio)
+    done = dict(zip(order, concurrently(retry, [results[i] for i in order])))
+    return [done[i][0] for i in range(len(results))], sum(n for _, n in done.values())
 
 
 def rescan(model: KnobModel, residual: Residual, start: FitResult, n_base: int,

@@ -55,6 +55,7 @@ from ..signals.frequency import ResponseError, response_error
 from ..signals.kinematics import kinematics
 from ..signals.residuals import ResidualAnalysis, analyse, rest_noise_level
 from .candidates import CANDIDATES, RECORDING_CHAIN, Candidate, corrected
+from ..identification.concurrency import concurrently
 from .evidence import (FREQUENCY, Result, Round, evaluate, prefer_consistent, prefer_simpler, rank, rediagnosed, rescan, retry_from_rediagnosis,
                        screen, screened, sparse_order)
 from .structure import locate
@@ -213,7 +214,7 @@ def _round(rnd: Round, remaining: list[Candidate], anchors, say) -> list[Result]
     full, the others judged at their screened point. Sorted by :func:`~.evidence.rank`."""
     st = rnd.settings
     say(f"round {rnd.number}: screening {len(remaining)} candidates")
-    screens = [screen(rnd, c, st.scan) for c in remaining]
+    screens = concurrently(lambda c: screen(rnd, c, st.scan), remaining)
     sparse = sparse_order(rnd.base.jacobian, screens, rnd.base.residual)
     by_fit = sorted(screens, key=lambda sc: sc.fit_cost)
     if rnd.structured == FREQUENCY:
@@ -233,12 +234,17 @@ def _round(rnd: Round, remaining: list[Candidate], anchors, say) -> list[Result]
     # (the sparse regression reads the fit part's time-domain residual: in a frequency round, noise)
     full = {sc.candidate.name for sc in order[:st.refits]} | \
         (set() if rnd.structured == FREQUENCY else set(sparse[:st.sparse_refits]))
+    to_refit = [sc for sc in order if sc.candidate.name in full]
+    for i, sc in enumerate(to_refit):
+        say(f"round {rnd.number}: refit {i + 1}/{len(full)} {sc.candidate.name}")
+    # independent full refits: one thread each (the model runs release the GIL)
+    refits = dict(zip((sc.candidate.name for sc in to_refit),
+                      concurrently(lambda sc: evaluate(rnd, sc.candidate, anchors, sc), to_refit)))
     results: list[Result] = []
     for i, sc in enumerate(order):
         name = sc.candidate.name
         if name in full:
-            say(f"round {rnd.number}: refit {sum(r.evidence.refit for r in results) + 1}/{len(full)} {name}")
-            res = evaluate(rnd, sc.candidate, anchors, sc)
+            res = refits[name]
         else:
             res = screened(rnd, sc, why(i, sc) + ("" if rnd.structured == FREQUENCY else
                                                   f"; not in the first {st.sparse_refits} of the sparse regression"))

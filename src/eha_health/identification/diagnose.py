@@ -35,6 +35,7 @@ raise a "twin cases" warning.
 """
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass, field, replace
 from typing import Callable
@@ -387,6 +388,7 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
 
 
 _TABLES: dict = {}
+_TABLES_LOCK = threading.Lock()     # diagnoses may run in threads (see .concurrency)
 
 
 def prepare(params: ModelParams | None = None, sequence: FDISequence | None = None) -> None:
@@ -399,8 +401,13 @@ def _start_table(params: ModelParams, sequence: FDISequence) -> StartTable:
     """Signature tables of the monitor model (cached per parameter set and sequence, the last few:
     the discrepancy loop alternates between the shipped monitor and a candidate's)."""
     key = (pack(params).tobytes(), repr(sequence))
-    if key not in _TABLES:
-        while len(_TABLES) >= 4:
-            _TABLES.pop(next(iter(_TABLES)))
-        _TABLES[key] = StartTable.shipped(params, sequence) or StartTable.build(params, sequence)
-    return _TABLES[key]
+    with _TABLES_LOCK:
+        table = _TABLES.get(key)
+    if table is None:
+        # built outside the lock: two threads may build the same table, never a half one
+        table = StartTable.shipped(params, sequence) or StartTable.build(params, sequence)
+        with _TABLES_LOCK:
+            while len(_TABLES) >= 4:
+                _TABLES.pop(next(iter(_TABLES)))
+            _TABLES[key] = table
+    return table

@@ -72,7 +72,16 @@ def run(p, s, cmd, load, noise, dbuf, out):
             transducer_step(p, s, dbuf)
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
+def run_one(p, cmd, load, out):
+    """Simulate one parameter row ``p`` from rest on the calling thread (the GIL released)."""
+    s = np.zeros(N_S)
+    dbuf = np.zeros((int(p[P_DELAY]) + 2, 2))
+    init_state(p, s, dbuf)
+    run(p, s, cmd, load, np.zeros(0), dbuf, out)
+
+
+@njit(cache=True, parallel=True, nogil=True, error_model="numpy")
 def run_batch(P, cmd, load, out):
     """Simulate every parameter row of ``P`` from rest, in parallel; ``out[b]`` per row."""
     empty = np.zeros(0)

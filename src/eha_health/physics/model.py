@@ -10,6 +10,9 @@ fits. Both share every other block and accept the same optional effects.
 """
 from __future__ import annotations
 
+import threading
+
+import numba
 import numpy as np
 
 from ..signals.response import Response
@@ -114,6 +117,24 @@ def simulate_batch(params: ModelParams, faults: list[Faults], command: np.ndarra
     return simulate_packed(np.stack([pack(params, f) for f in faults]), command)
 
 
+#: numba's built-in "workqueue" threading layer (used where neither OpenMP nor TBB is installed)
+#: terminates the process when two threads launch a parallel batch at once; OpenMP and TBB do not.
+_LAUNCH = threading.Lock()
+_SAFE_LAYERS = ("omp", "tbb")
+_layer_safe: bool | None = None
+
+
+def _threadsafe_layer() -> bool:
+    """Whether parallel batches may be launched from several threads at once (known after the first)."""
+    global _layer_safe
+    if _layer_safe is None:
+        try:
+            _layer_safe = numba.threading_layer() in _SAFE_LAYERS
+        except ValueError:          # no parallel batch has run yet: the layer is not chosen
+            return False
+    return _layer_safe
+
+
 def simulate_packed(P: np.ndarray, command: np.ndarray, load: np.ndarray | None = None) -> np.ndarray:
     """Simulate packed parameter rows ``P`` (see :func:`params.pack`) in parallel, noise-free.
 
@@ -125,5 +146,13 @@ def simulate_packed(P: np.ndarray, command: np.ndarray, load: np.ndarray | None 
     if len(ld) and len(ld) != len(cmd):
         raise ValueError(f"load has {len(ld)} samples but the command has {len(cmd)}")
     out = np.zeros((len(P), len(cmd), N_OUT))
-    kernel.run_batch(np.ascontiguousarray(P, dtype=float), cmd, ld, out)
+    P = np.ascontiguousarray(P, dtype=float)
+    if len(P) == 1:
+        # one run on the calling thread: a parallel launch of one row would hold the other cores
+        kernel.run_one(P[0], cmd, ld, out[0])
+    elif _threadsafe_layer():
+        kernel.run_batch(P, cmd, ld, out)
+    else:
+        with _LAUNCH:
+            kernel.run_batch(P, cmd, ld, out)
     return out
