@@ -24,6 +24,14 @@ class WindowError(ValueError):
     """The recorded window cannot be diagnosed; the message says why."""
 
 
+class NoSamples(WindowError):
+    """Not one sample of ``channel`` in the window: nothing of that source reached the reader."""
+
+    def __init__(self, channel: str):
+        super().__init__(f"{channel}: no samples in the test window")
+        self.channel = channel
+
+
 class IncompleteWindow(WindowError):
     """The samples of a channel stop before the window's end (the source stopped: a plant killed
     mid-test, a link gone): the window is reported incomplete, not diagnosed on what arrived."""
@@ -129,7 +137,7 @@ def assemble(channels: dict[str, Samples], start_ns: int, end_ns: int,
             continue            # not measured on this rig
         cut[name] = Samples(s.stamps[inside], s.values[inside])
         if len(cut[name].stamps) == 0:
-            raise WindowError(f"{name}: no samples in the test window")
+            raise NoSamples(name)
         _check_order(name, cut[name], start_ns)
     grid = cut["command"].stamps
     if len(grid) < 100:

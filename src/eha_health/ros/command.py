@@ -185,6 +185,8 @@ class CommandNode(Node):
         """Before the node goes: wait (bounded) until every subscriber has acknowledged the
         samples and marks already published; a process that exits right after its last
         sample would otherwise take the end of the test with it."""
+        if not self.context.ok():
+            return      # shut down already (SIGINT): nothing can be delivered any more
         for pub in (self.pub_cmd, self.pub_win):
             pub.wait_for_all_acked(Duration(seconds=timeout_s))
 

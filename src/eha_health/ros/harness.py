@@ -42,10 +42,13 @@ def message(topic: str, stamp_ns: int, *fields):
 class NodeHarness:
     """A monitor and a plant node in a context of their own, fed by hand."""
 
-    def __init__(self):
+    def __init__(self, monitor_params: dict | None = None):
+        """``monitor_params``: further monitor parameters (name -> value)."""
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx, signal_handler_options=SignalHandlerOptions.NO)
-        self.monitor = MonitorNode(context=self.ctx, parameter_overrides=[Parameter("log_path", value="")])
+        params = {"log_path": "", **(monitor_params or {})}
+        self.monitor = MonitorNode(context=self.ctx,
+                                   parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
         self.plant = PlantNode(context=self.ctx)
         for n in (self.monitor, self.plant):
             n.get_logger().set_level(LoggingSeverity.FATAL)

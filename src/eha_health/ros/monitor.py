@@ -42,7 +42,7 @@ from ..identification.diagnose import DEFAULT_METHOD, METHODS
 from ..identification.fitness import FITNESSES
 from ..io.bagrun import HISTORY_META
 from ..io.mcaplog import BagWriter
-from ..io.window import IncompleteWindow
+from ..io.window import IncompleteWindow, NoSamples
 from ..monitoring.analysis import analyse_window
 from ..monitoring.health import HealthPolicy, Verdict, escalate
 from ..monitoring.prognosis import PrognosisStep, rul_values
@@ -59,6 +59,9 @@ KEEP_RESPONSES = 10
 #: Verdicts kept in ``results`` by default (each ~2-4 kB without its response; every verdict is in the
 #: MCAP log, and with a ``history`` in the health history, so a monitor that runs on must not hold all).
 KEEP_VERDICTS = 1000
+#: A test this node asked for that reached it without one sample of a channel is asked for again,
+#: this many times in a row at most (then it is reported, refused: the source does not reach us).
+LOST_RETRIES = 3
 
 #: The monitor's parameters (docs/interfaces.md): defaults, units, ranges.
 PARAMS = (
@@ -92,8 +95,11 @@ PARAMS = (
           -1.0, 1.0),
     Param("error_p_fail", -1.0, "ERROR when P(failure before the next check) reaches this (< 0: "
           "prognosis.error_p_fail)", -1.0, 1.0),
+    Param("request_timeout_s", 30.0, "a test asked for whose start mark has not arrived this long after the command "
+          "node accepted the request is asked for again [s, wall clock]", 1.0, 3600.0),
     Param("request_tests", 0, "ask the command node (eha/start_test) for this many tests, one after each verdict, "
-          "each once every input topic has a matched publisher (0: never ask)", 0, INT_MAX),
+          "each once every input topic has a matched publisher; one that arrives without any sample of a channel "
+          "is asked for again (0: never ask)", 0, INT_MAX),
     Param("keep_verdicts", KEEP_VERDICTS, "latest verdicts kept in memory (each is also in the MCAP log, when there "
           "is one); 0: all", 0, INT_MAX),
 )
@@ -127,7 +133,10 @@ class MonitorNode(Node):
             topic, handlers.get(topic.name)), qos(topic, best_effort=lossy), raw=True)
                       for topic in C.INPUTS]
         self.tests_requested = 0
+        self.tests_lost = 0                 # tests asked for again: nothing of a channel arrived
+        self._lost_in_row = 0
         self._request = None                  # the start_test call in flight
+        self._asked_at: float | None = None   # when the command node accepted our last request [s, monotonic]
         self._next_request = 0.0
         self._start_client = None
         if int(self.get_parameter("request_tests").value) > 0:
@@ -215,6 +224,7 @@ class MonitorNode(Node):
         ns, event, tid = cv.window_from_msg(msg)
         self.windows.mark(ns, event, tid, time.monotonic(), float(self.get_parameter("window_timeout_s").value))
         if event == "start":
+            self._asked_at = None
             self._fetch_truth(tid)
 
     def _fetch_truth(self, tid: int) -> None:
@@ -239,6 +249,7 @@ class MonitorNode(Node):
 
     # ---------------------------------------------------------------- windows
     def _poll(self) -> None:
+        self._check_request()
         self._maybe_request_test()
         for w in self.windows.ready(time.monotonic(), float(self.get_parameter("window_timeout_s").value)):
             self._start_diagnosis(w)
@@ -274,6 +285,7 @@ class MonitorNode(Node):
                 ok, why = False, str(e)
             if ok:
                 self.tests_requested += 1
+                self._asked_at = time.monotonic()
             else:
                 self._next_request = time.monotonic() + 0.5
                 self.get_logger().info(f"start_test refused: {why}; asking again", throttle_duration_sec=5.0)
@@ -286,6 +298,10 @@ class MonitorNode(Node):
             r = self.windows.assemble(w, int(self.get_parameter("max_fill_samples").value))
         except IncompleteWindow as e:   # a source stopped mid-test: say so, do not diagnose a part
             return self._report(w, None, str(e), incomplete=True)
+        except NoSamples as e:
+            if self._asked_again(w, e):
+                return
+            return self._report(w, None, str(e))
         except ValueError as e:     # WindowError: the window names what is wrong with it
             return self._report(w, None, str(e))
         args = dict(method=self.get_parameter("method").value, fitness=self.get_parameter("fitness").value,
@@ -305,6 +321,45 @@ class MonitorNode(Node):
                                            discrepancy=rep.verdict if rep is not None else None)
             return d, rep, out
         self._futures.append((w, self._worker.submit(work)))
+
+    def _check_request(self) -> None:
+        """A test asked for whose start mark never came (its marks, too, can go to a publisher that
+        has not matched this node yet: measured, a restarted monitor waited for ever) is asked for
+        again after ``request_timeout_s``, at most :data:`LOST_RETRIES` times in a row."""
+        if self._asked_at is None or time.monotonic() - self._asked_at < float(self.get_parameter("request_timeout_s").value):
+            return
+        self._asked_at = None
+        if self.verdicts >= self.tests_requested or self.busy or self.windows.windows:
+            return          # answered, or a window is in hand (its start mark came before the answer)
+        if self._lost_in_row >= LOST_RETRIES:
+            self.get_logger().error(f"no test window reached this monitor after {LOST_RETRIES + 1} requests in a row: "
+                                    "are the command node's eha/test_window marks remapped or filtered?")
+            return
+        self._lost_in_row += 1
+        self.tests_lost += 1
+        self.tests_requested -= 1
+        self.get_logger().warning(f"the test asked for has not started here after "
+                                  f"{self.get_parameter('request_timeout_s').value:g} s; asking for another "
+                                  f"({self._lost_in_row} of {LOST_RETRIES})")
+
+    def _asked_again(self, w, e: NoSamples) -> bool:
+        """A test this node asked for, of which not one sample of a channel reached it, is asked
+        for again (at most :data:`LOST_RETRIES` times in a row) rather than reported.
+
+        Discovery is not symmetric: this node's subscription can see the publisher (and ask for a
+        test) before the publisher has matched it. Measured over DDS: a monitor restarted after a
+        kill -9 got the test's marks and no command sample in 3 of 14 runs -- the publisher's
+        side matched it seconds later, while the test streamed.
+        """
+        if self.verdicts >= self.tests_requested or self._lost_in_row >= LOST_RETRIES:
+            return False    # not a test of ours, or the source does not reach us at all: say so
+        self._lost_in_row += 1
+        self.tests_lost += 1
+        self.tests_requested -= 1           # the request is made again
+        self.get_logger().warning(f"test {w.id}: {e} -- none reached this monitor, which asked for the test; "
+                                  f"asking for another ({self._lost_in_row} of {LOST_RETRIES})")
+        self.windows.forget(w.id)
+        return True
 
     def _policy(self) -> HealthPolicy:
         return HealthPolicy(float(self.get_parameter("warn_level").value), float(self.get_parameter("error_level").value))
@@ -337,6 +392,7 @@ class MonitorNode(Node):
         entry.update(level=v.level, message=v.message)
         self.results.append(entry)
         self.verdicts += 1
+        self._lost_in_row = 0
         # only the last windows' samples and fitted responses stay (~0.4 MB a test: 300 tests would hold 120 MB)
         if len(self.results) > KEEP_RESPONSES:
             old = self.results[-KEEP_RESPONSES - 1]
