@@ -11,7 +11,6 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +22,10 @@ from eha_health.physics.faults import Faults
 from eha_health.prognostics.store import list_tests
 from msg_bridge import convert as cv
 from eha_health.ros.launch import _ros_args
+from waiting import wait_until
+
+#: the monitor is killed and restarted on purpose; the plant or the command node must not exit
+MONITOR_MAY_EXIT = ("monitor",)
 
 pytestmark = pytest.mark.graph
 
@@ -44,15 +47,6 @@ def _log_state(path: Path) -> tuple[int, int]:
     return n, len(bag.messages.get("/eha/command", []))
 
 
-def _wait(predicate, timeout_s: float, what: str, procs) -> None:
-    end = time.monotonic() + timeout_s
-    while not predicate():
-        for name, p in procs.items():
-            assert p.poll() is None or name == "monitor", f"{name} exited ({p.returncode}) while waiting for {what}"
-        assert time.monotonic() < end, f"{what} not reached within {timeout_s:g} s"
-        time.sleep(0.2)      # polling a file another process writes; the deadline is the wait
-
-
 def test_monitor_killed_mid_window_keeps_its_complete_windows_and_a_restart_diagnoses_the_next(tmp_path):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]),
                ROS_DOMAIN_ID=str(1 + (int(os.environ.get("ROS_DOMAIN_ID", "0")) + 90) % 200))
@@ -64,10 +58,10 @@ def test_monitor_killed_mid_window_keeps_its_complete_windows_and_a_restart_diag
                                      "history": str(history)}, env),
     }
     try:
-        _wait(lambda: _log_state(first)[0] >= 1, 600, "first verdict in the log", procs)
+        wait_until(lambda: _log_state(first)[0] >= 1, 600, "first verdict in the log", procs, MONITOR_MAY_EXIT)
         n_cmd = _log_state(first)[1]
         # the second test is streaming in: kill the monitor with a third of its window received
-        _wait(lambda: _log_state(first)[1] >= n_cmd + 1500, 600, "second test streaming", procs)
+        wait_until(lambda: _log_state(first)[1] >= n_cmd + 1500, 600, "second test streaming", procs, MONITOR_MAY_EXIT)
         procs["monitor"].send_signal(signal.SIGKILL)
         assert procs["monitor"].wait(timeout=60) == -signal.SIGKILL
 
@@ -88,7 +82,8 @@ def test_monitor_killed_mid_window_keeps_its_complete_windows_and_a_restart_diag
         # a restarted monitor asks for the next test and diagnoses it
         procs["monitor"] = _node("monitor", {"request_tests": 1, "exit_after": 1, "log_path": str(second),
                                              "plant_node": "/eha_plant", "history": str(history)}, env)
-        _wait(lambda: procs["monitor"].poll() is not None, 600, "restarted monitor's verdict", procs)
+        wait_until(lambda: procs["monitor"].poll() is not None, 600, "restarted monitor's verdict", procs,
+                   MONITOR_MAY_EXIT)
         assert procs["monitor"].returncode == 0
     finally:
         for p in procs.values():
