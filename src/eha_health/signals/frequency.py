@@ -16,6 +16,7 @@ offset.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from scipy.signal import csd, welch
@@ -68,6 +69,11 @@ def _estimate(u, y, fs: float, n: int, min_coherence: float, min_power: float):
     return FrequencyResponse(f[keep], H[keep], coh[keep]), keep, Puu
 
 
+def _model_h(u, ym, fs: float, n: int, keep, Puu) -> np.ndarray:
+    """H1 of a model's output ``ym`` over ``u`` on the measured response's kept bins."""
+    return csd(u, _check(u, ym)[1], fs=fs, nperseg=n)[1][keep] / Puu[keep]
+
+
 def compare(command, measured, models: dict[str, np.ndarray], fs: float, n_bands: int = 8,
             min_coherence: float = 0.9) -> list[dict]:
     """Gain and phase of the measured and of each model's output over the command, per band.
@@ -87,7 +93,7 @@ def compare(command, measured, models: dict[str, np.ndarray], fs: float, n_bands
     if len(meas.f) == 0:
         return []
     # the models on the same bins (their own coherence is not a criterion: no noise)
-    Hm = {name: csd(u, _check(u, ym)[1], fs=fs, nperseg=n)[1][keep] / Puu[keep] for name, ym in models.items()}
+    Hm = {name: _model_h(u, ym, fs, n, keep, Puu) for name, ym in models.items()}
     # phases unwrapped along the whole kept range: a band high up can be more than half a turn off
     ph = {"measured": np.unwrap(np.angle(meas.H))}
     err = {}
@@ -137,14 +143,19 @@ class ResponseError:
         return bool(len(self.f)) and self.power > factor * self.noise_power
 
 
-def response_error(command, measured, model, fs: float, min_coherence: float = 0.9) -> ResponseError:
-    """:class:`ResponseError` of ``model``'s output over ``command`` against ``measured``'s, sampled
-    at ``fs`` [Hz], on the bins where the command has power and the measured coherence is high."""
+def response_errors(command, measured, fs: float, min_coherence: float = 0.9) -> Callable[[np.ndarray], ResponseError]:
+    """The :class:`ResponseError` of a model output against ``measured``'s response over ``command``
+    (sampled at ``fs`` [Hz]) on the bins where the command has power and the measured coherence is
+    high: the measured side is estimated once, each model output costs one cross-spectrum."""
     u, y = _check(command, measured)
-    ym = _check(u, model)[1]
     n = _segment(len(u))
     meas, keep, Puu = _estimate(u, y, fs, n, min_coherence, 1e-3)
-    Hm = csd(u, ym, fs=fs, nperseg=n)[1][keep] / Puu[keep]
     segments = max((len(u) - n // 2) // (n // 2), 1)     # Welch's count, Hann windows at 50 % overlap
     g2 = meas.coherence
-    return ResponseError(meas.f, Hm / meas.H - 1.0, np.sqrt((1.0 - g2) / (segments * g2)))
+    sigma = np.sqrt((1.0 - g2) / (segments * g2))
+    return lambda model: ResponseError(meas.f, _model_h(u, model, fs, n, keep, Puu) / meas.H - 1.0, sigma)
+
+
+def response_error(command, measured, model, fs: float, min_coherence: float = 0.9) -> ResponseError:
+    """:class:`ResponseError` of one ``model`` output (see :func:`response_errors`)."""
+    return response_errors(command, measured, fs, min_coherence)(model)
