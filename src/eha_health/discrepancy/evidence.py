@@ -22,9 +22,9 @@ from typing import Callable
 
 import numpy as np
 
+from ..identification.concurrency import concurrently
 from ..identification.knobs import Knob
 from ..identification.local import least_squares
-from ..identification.concurrency import concurrently
 from ..identification.problem import KnobModel, Problem
 from ..identification.residual import Residual
 from ..identification.result import FitResult

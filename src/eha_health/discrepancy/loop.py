@@ -40,6 +40,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..identification.concurrency import concurrently
 from ..identification.diagnose import WHOLE_TEST_METHODS, Diagnosis, diagnose
 from ..identification.knobs import FAULT_KNOBS, Knob
 from ..identification.local import least_squares
@@ -51,11 +52,10 @@ from ..identification.uncertainty import autocorr_inflation
 from ..physics.params import ModelParams, load
 from ..physics.sequence import FDISequence
 from ..signals.datachecks import check_channel
-from ..signals.frequency import ResponseError, response_error
+from ..signals.frequency import ResponseError, response_errors
 from ..signals.kinematics import kinematics
 from ..signals.residuals import ResidualAnalysis, analyse, rest_noise_level
 from .candidates import CANDIDATES, RECORDING_CHAIN, Candidate, corrected
-from ..identification.concurrency import concurrently
 from .evidence import (FREQUENCY, Result, Round, evaluate, prefer_consistent, prefer_simpler, rank, rediagnosed, rescan, retry_from_rediagnosis,
                        screen, screened, sparse_order)
 from .structure import locate
@@ -87,8 +87,9 @@ class _Split:
         self.frequency = None
         held = ~fit_mask
         if self.settings.frequency_evidence and "position" in rec.channels and held.sum() >= 256:
-            u, y, col = rec.command[held], rec.channels["position"][held], CHANNEL_COLUMNS["position"]
-            self.frequency = lambda out: response_error(u, y, out[held, col], rec.sample_rate)
+            err, col = response_errors(rec.command[held], rec.channels["position"][held], rec.sample_rate), \
+                CHANNEL_COLUMNS["position"]
+            self.frequency = lambda out: err(out[held, col])
 
     def structure(self, time_structured: bool, out: np.ndarray,
                   number: int) -> tuple[bool | str, ResponseError | None, dict | None]:
@@ -252,25 +253,23 @@ def _round(rnd: Round, remaining: list[Candidate], anchors, say) -> list[Result]
             res.evidence.sparse_rank = sparse.index(name) + 1
         results.append(res)
     results.sort(key=rank)
-    while not results[0].evidence.refit:
-        # a pruned candidate ranks first on its screened point: it gets its full refit (only a
-        # refitted model can become the next round's base)
-        top = results[0]
-        sc = next(s for s in screens if s.candidate.name == top.evidence.name)
-        say(f"round {rnd.number}: refit {sc.candidate.name} (ranked first after screening)")
-        new = evaluate(rnd, sc.candidate, anchors, sc)
-        new.evidence.sparse_rank = top.evidence.sparse_rank
-        results[0] = new
-        results.sort(key=rank)
 
-    def refit(name: str) -> Result:
+    def refit(name: str, why: str) -> Result:
+        """The full refit of a pruned candidate, in place of its screened evidence."""
         sc = next(s for s in screens if s.candidate.name == name)
-        say(f"round {rnd.number}: refit {name} (nested in the first)")
+        say(f"round {rnd.number}: refit {name} ({why})")
         new = evaluate(rnd, sc.candidate, anchors, sc)
         new.evidence.sparse_rank = next(r.evidence.sparse_rank for r in results if r.evidence.name == name)
         return new
+
+    while not results[0].evidence.refit:
+        # a pruned candidate ranks first on its screened point: it gets its full refit (only a
+        # refitted model can become the next round's base)
+        results[0] = refit(results[0].evidence.name, "ranked first after screening")
+        results.sort(key=rank)
     by_name = {c.name: c for c in remaining}
-    return prefer_consistent(rnd, prefer_simpler(rnd, results, by_name.__getitem__, refit), refit)
+    ranked = prefer_simpler(rnd, results, by_name.__getitem__, lambda n: refit(n, "nested in the first"))
+    return prefer_consistent(rnd, ranked, lambda n: refit(n, "kinematic evidence"))
 
 
 def _final_fit(split: _Split, model: KnobModel, base: FitResult, n_base: int, rediagnose) -> tuple[FitResult, int]:
