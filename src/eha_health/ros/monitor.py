@@ -133,7 +133,7 @@ class MonitorNode(Node):
             topic, handlers.get(topic.name)), qos(topic, best_effort=lossy), raw=True)
                       for topic in C.INPUTS]
         self.tests_requested = 0
-        self.tests_lost = 0                 # tests asked for again: nothing of a channel arrived
+        self.tests_lost = 0                   # tests asked for again: no window, or a channel without a sample
         self._lost_in_row = 0
         self._request = None                  # the start_test call in flight
         self._asked_at: float | None = None   # when the command node accepted our last request [s, monotonic]
@@ -335,12 +335,8 @@ class MonitorNode(Node):
             self.get_logger().error(f"no test window reached this monitor after {LOST_RETRIES + 1} requests in a row: "
                                     "are the command node's eha/test_window marks remapped or filtered?")
             return
-        self._lost_in_row += 1
-        self.tests_lost += 1
-        self.tests_requested -= 1
-        self.get_logger().warning(f"the test asked for has not started here after "
-                                  f"{self.get_parameter('request_timeout_s').value:g} s; asking for another "
-                                  f"({self._lost_in_row} of {LOST_RETRIES})")
+        self._ask_again(f"the test asked for has not started here after "
+                        f"{self.get_parameter('request_timeout_s').value:g} s")
 
     def _asked_again(self, w, e: NoSamples) -> bool:
         """A test this node asked for, of which not one sample of a channel reached it, is asked
@@ -353,13 +349,16 @@ class MonitorNode(Node):
         """
         if self.verdicts >= self.tests_requested or self._lost_in_row >= LOST_RETRIES:
             return False    # not a test of ours, or the source does not reach us at all: say so
-        self._lost_in_row += 1
-        self.tests_lost += 1
-        self.tests_requested -= 1           # the request is made again
-        self.get_logger().warning(f"test {w.id}: {e} -- none reached this monitor, which asked for the test; "
-                                  f"asking for another ({self._lost_in_row} of {LOST_RETRIES})")
+        self._ask_again(f"test {w.id}: {e} -- none reached this monitor, which asked for the test")
         self.windows.forget(w.id)
         return True
+
+    def _ask_again(self, why: str) -> None:
+        """A test asked for did not reach this node: the request is made again (counted, said)."""
+        self._lost_in_row += 1
+        self.tests_lost += 1
+        self.tests_requested -= 1
+        self.get_logger().warning(f"{why}; asking for another ({self._lost_in_row} of {LOST_RETRIES})")
 
     def _policy(self) -> HealthPolicy:
         return HealthPolicy(float(self.get_parameter("warn_level").value), float(self.get_parameter("error_level").value))
