@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from eha_health import simulate
-from eha_health.bench.discrepancy import lagged, late, offset, scaled
+from eha_health.bench.discrepancy import all_late, drifting, fast_clock, lagged, late, offset, scaled
 from eha_health.discrepancy.candidates import BY_NAME, RECORDING, RECORDING_CHAIN
 from eha_health.discrepancy.loop import analyse_fdi_test
 from eha_health.identification.diagnose import diagnose
@@ -25,8 +25,11 @@ def _run(seed=11, params=None, faults=FAULTS):
 
 
 def test_library_has_every_recording_effect_of_every_channel():
-    assert {c.name for c in RECORDING} == {f"{c}_{k}" for c in MEASURED for k in ("offset", "scale", "skew", "lag")}
+    kinds = ("offset", "scale", "skew", "lag", "drift")
+    assert {c.name for c in RECORDING} == {f"{c}_{k}" for c in MEASURED for k in kinds} | {"command_skew", "time_base"}
     assert all(c.kind == RECORDING_CHAIN and c.knobs[0].recording for c in RECORDING)
+    # the whole-record ones act on every channel; the others on their own
+    assert all(c.knobs[0].output.channels == ((c.channel,) if c.channel else MEASURED) for c in RECORDING)
 
 
 def test_recording_knob_changes_its_channel_only_and_shares_one_simulation():
@@ -67,6 +70,32 @@ def test_recording_lag_is_undone_without_blowing_up_the_noise():
     assert np.sqrt(np.mean((recording.lag(y, 3e-3, rate) - y) ** 2)) > 1e-2 * span   # the lag itself is not small
     noise = np.random.default_rng(0).standard_normal(20000)
     assert np.std(recording.undo("lag", noise, 3e-3, rate)) < 3.0
+
+
+@pytest.mark.parametrize("kind,value", [("drift", 1e-4), ("stretch", 0.007), ("stretch", -0.004), ("skew", -2.5e-3)])
+def test_recording_effects_are_undone(kind, value):
+    from eha_health.signals import recording
+    r = simulate(kind="monitor", faults=FAULTS)
+    y, rate = r.position, r.sample_rate
+    done = recording.APPLY[kind](y, value, rate)
+    assert np.sqrt(np.mean((done - y) ** 2)) > 5e-3 * np.ptp(y)     # the effect itself is not small
+    back = recording.undo(kind, done, value, rate)
+    inner = slice(50, -50)                                          # ends are held, not restored
+    assert np.sqrt(np.mean((back[inner] - y[inner]) ** 2)) < 2e-4 * np.ptp(y)
+
+
+@pytest.mark.parametrize("alter,cand,value", [
+    (lambda r: all_late(r, 3e-3), "command_skew", 3e-3),     # before it: position_skew + current_skew, dK 0.033
+    (lambda r: fast_clock(r, 0.008), "time_base", 0.008),     # before it: position_skew, dK 0.2
+    (lambda r: drifting(r, "pressure", 0.2e6), "pressure_drift", 0.2e6),
+])
+def test_whole_record_and_drift_effects_are_found_and_the_faults_re_identified(alter, cand, value):
+    r = alter(_run(seed=23))
+    rep = analyse_fdi_test(r, max_effects=2, truth=FAULTS.as_dict())
+    assert rep.selected == [cand], (rep.selected, [c.name for c in rep.candidates[:3]])
+    assert rep.after.values[cand] == pytest.approx(value, rel=0.1)
+    assert max(rep.before.errors.values()) > 0.03 or cand.endswith("drift")
+    assert max(rep.after.errors.values()) <= 0.03
 
 
 @pytest.fixture(scope="module")

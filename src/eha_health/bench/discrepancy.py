@@ -17,7 +17,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.signal import cont2discrete, lfilter
 
-from ..discrepancy.candidates import BY_NAME
+from ..discrepancy.candidates import BY_NAME, RECORDING_CHAIN
 from ..discrepancy.loop import analyse_fdi_test
 from ..discrepancy.report import UNEXPLAINED
 from ..physics.faults import Faults
@@ -72,16 +72,42 @@ def lagged(r, channel: str, tau: float):
     return r
 
 
+def drifting(r, channel: str, rate: float):
+    """``r`` with ``channel``'s zero drifting at ``rate`` [channel unit / s] from the first sample."""
+    setattr(r, channel, getattr(r, channel) + rate * (r.t - r.t[0]))
+    return r
+
+
+def all_late(r, d: float):
+    """``r`` with every measured channel recorded ``d`` [s] late against the command."""
+    for c in MEASURED:
+        late(r, c, d)
+    return r
+
+
+def fast_clock(r, e: float):
+    """``r`` with every measured channel sampled on a time base (1 + e) faster than the command's
+    (cubic spline at t0 + (1 + e)(t - t0), end held)."""
+    ts = np.clip(r.t[0] + (1.0 + e) * (r.t - r.t[0]), None, r.t[-1])
+    for c in MEASURED:
+        setattr(r, c, CubicSpline(r.t, getattr(r, c))(ts))
+    return r
+
+
 #: Size of each recording alteration of the bench: an offset of one residual scale of the channel
-#: (position 0.1 mm, pressure 0.5 MPa, ...), +3 % scale, 4 ms late, a 3 ms sensor lag.
+#: (position 0.1 mm, pressure 0.5 MPa, ...), +3 % scale, 4 ms late, a 3 ms sensor lag, a drift of
+#: 0.3 residual scales per second (about one over the FDI test).
 ALTER = {"offset": (offset, lambda c: CHANNEL_SCALES[c]), "scale": (scaled, lambda c: 0.03),
-         "skew": (late, lambda c: 4e-3), "lag": (lagged, lambda c: 3e-3)}
+         "skew": (late, lambda c: 4e-3), "lag": (lagged, lambda c: 3e-3),
+         "drift": (drifting, lambda c: 0.3 * CHANNEL_SCALES[c])}
+#: The whole-record alterations: every channel 3 ms late, a time base 0.5 % fast.
+ALTER_RECORD = {"command_skew": lambda r: all_late(r, 3e-3), "time_base": lambda r: fast_clock(r, 5e-3)}
 
 
 def recording_alterations(channels=MEASURED) -> tuple[tuple[str, object], ...]:
     """(candidate, response -> altered response) for every recording candidate."""
     return tuple((f"{c}_{k}", (lambda r, c=c, k=k: ALTER[k][0](r, c, ALTER[k][1](c))))
-                 for c in channels for k in ALTER)
+                 for c in channels for k in ALTER) + tuple(ALTER_RECORD.items())
 
 
 #: Two effects at once: (expected candidates, plant change, recording alteration).
@@ -116,14 +142,17 @@ def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, faul
         truth = f.as_dict()
         t0 = time.perf_counter()
         rep = analyse_fdi_test(r, max_effects=max(len(names), 1), truth=truth)
-        chans = {BY_NAME[n].channel or "position" for n in names} or {"position"}
+        # the channels an effect acts on (an in-loop one: position; a whole-record one: all of them)
+        chans = {c for n in names for c in ((BY_NAME[n].channel,) if BY_NAME[n].channel else
+                                            MEASURED if BY_NAME[n].kind == RECORDING_CHAIN else ("position",))}
+        chans = [c for c in MEASURED if c in chans] or ["position"]
         cases.append({
             "effect": "+".join(names) or None, "effects": list(names), "faults": truth, "selected": rep.selected,
             "verdict": rep.verdict, "ranked_first": rep.candidates[0].name if rep.candidates else None,
             "parameters": {k: v for e in rep.candidates if e.selected for k, v in e.parameters.items()},
             "rms_before": rep.before.rms["position"], "rms_after": rep.after.rms["position"],
             "noise_position": rep.residual_before.channels["position"].noise_sd,
-            "channels": sorted(chans),
+            "channels": chans,
             "excess_held_before": {c: rep.before.excess_held_out[c] for c in chans},
             "excess_held_after": {c: rep.after.excess_held_out[c] for c in chans},
             "err_before": max(rep.before.errors.values()), "err_after": max(rep.after.errors.values()),

@@ -29,12 +29,15 @@ vibration_null_shift   null bias k <|a|> + b0 (shift under vibration)     A s^2/
 These act *in the loop* (the controller sees them; they move the actuator). The
 *recording* candidates (:data:`RECORDING`) are generated from the channel list
 (:data:`~eha_health.signals.channels.MEASURED`): for every measured channel an offset,
-a scale error, a time skew against the command and a first-order sensor lag
-(:mod:`~eha_health.signals.recording`), named ``<channel>_<kind>``. They change the
+a scale error, a time skew against the command, a first-order sensor lag and a drift of its
+zero (:mod:`~eha_health.signals.recording`), named ``<channel>_<kind>``, and two of the whole
+record: ``command_skew`` (every channel late alike against the recorded command) and
+``time_base`` (every channel on a time base off the command's). They change the
 recorded output only: the other channels do not show them, which is the evidence that
 tells ``position_skew`` from the in-loop ``sensor_delay``, or ``position_offset`` from
 ``sensor_bias`` (the loop holds the surface off by a feedback bias, and the hinge
-load -- the pressure -- shows it).
+load -- the pressure -- shows it). ``command_skew`` is also what a transport delay of the
+command before the actuator looks like: the outputs cannot tell the two apart.
 """
 from __future__ import annotations
 
@@ -166,25 +169,33 @@ CANDIDATES: tuple[Candidate, ...] = (
               nests=(("null_shift_per_accel", "valve_null_bias"),)),
 )
 
-def _recorded(channel: str, kind: str):
-    col, fn = CHANNEL_COLUMNS[channel], recording.APPLY[kind]
+@dataclass(frozen=True)
+class Recorded:
+    """A knob's ``output``: the measurement-chain effect ``kind`` (:mod:`~..signals.recording`) on
+    the recorded ``channels`` of a simulated output [n, N_OUT]; the one place a recording knob
+    says what it does (the correction of the data reads it too)."""
+    kind: str
+    channels: tuple[str, ...]
 
-    def output(out: np.ndarray, value: float, rate: float) -> np.ndarray:
+    def __call__(self, out: np.ndarray, value: float, rate: float) -> np.ndarray:
         out = out.copy()
-        out[:, col] = fn(out[:, col], value, rate)
+        for c in self.channels:
+            col = CHANNEL_COLUMNS[c]
+            out[:, col] = recording.APPLY[self.kind](out[:, col], value, rate)
         return out
-    return output
 
 
 #: Sizes of the recording effects: (lower, upper, typical) per kind; an offset in the channel's
-#: residual scale (position 0.1 mm, pressure 0.5 MPa, ...).
+#: residual scale (position 0.1 mm, pressure 0.5 MPa, ...), a drift in residual scales per second.
 RECORDING_SIZES = {"offset": (-50.0, 50.0, 1.0), "scale": (-0.3, 0.3, 0.02), "skew": (-0.02, 0.02, 1e-3),
-                   "lag": (0.0, 0.02, 1e-3)}
+                   "lag": (0.0, 0.02, 1e-3), "drift": (-10.0, 10.0, 0.3), "stretch": (-0.02, 0.02, 1e-3)}
+_IN_SCALES = ("offset", "drift")
 _RECORDING_DOCS = {
     "offset": "offset of the recorded {c} (transducer zero, amplifier offset)",
     "scale": "scale error of the recorded {c} (transducer calibration, amplifier gain)",
     "skew": "time skew of the recorded {c} against the command (logger channel timing), either sign",
-    "lag": "first-order lag of the {c} transducer or its anti-alias filter"}
+    "lag": "first-order lag of the {c} transducer or its anti-alias filter",
+    "drift": "drift of the recorded {c}'s zero over the record (temperature, a charge amplifier's leak)"}
 
 
 def corrected(response, model, x):
@@ -194,24 +205,38 @@ def corrected(response, model, x):
     r = copy.copy(response)
     for k, v in zip(model.knobs, np.asarray(x, float)):
         if k.recording and v != k.off:
-            c, kind = k.name.rsplit("_", 1)
-            setattr(r, c, recording.undo(kind, np.asarray(getattr(r, c), float), float(v), response.sample_rate))
+            for c in k.output.channels:
+                y = getattr(r, c, None)
+                if y is not None:
+                    setattr(r, c, recording.undo(k.output.kind, np.asarray(y, float), float(v), response.sample_rate))
     return r
 
 
 def recording_candidates(channels=MEASURED) -> tuple[Candidate, ...]:
-    """The measurement-chain candidates of ``channels``: offset, scale, skew, lag of each."""
+    """The measurement-chain candidates of ``channels``: offset, scale, skew, lag and drift of
+    each, and two of the whole record: every channel skewed alike against the command, and every
+    channel on a time base off the command's."""
     out = []
     for c in channels:
         for kind in recording.KINDS:
             lo, hi, typ = RECORDING_SIZES[kind]
-            unit = UNITS[c] if recording.UNIT[kind] == "channel" else recording.UNIT[kind]
-            if kind == "offset":
+            unit = recording.UNIT[kind].replace("channel", UNITS[c])
+            if kind in _IN_SCALES:
                 lo, hi, typ = (v * CHANNEL_SCALES[c] for v in (lo, hi, typ))
             out.append(Candidate(f"{c}_{kind}", _RECORDING_DOCS[kind].format(c=c),
-                                 (Knob(f"{c}_{kind}", unit, lo, hi, typ, 0.0, output=_recorded(c, kind),
+                                 (Knob(f"{c}_{kind}", unit, lo, hi, typ, 0.0, output=Recorded(kind, (c,)),
                                        doc=_RECORDING_DOCS[kind].format(c=c)),),
                                  RECORDING_CHAIN, c))
+    every = tuple(channels)
+    for name, kind, doc in (
+            ("command_skew", "skew", "every measured channel late against the recorded command alike (the command "
+                                     "logged by another clock or buffer, or a transport delay before the actuator): "
+                                     "a whole-record time skew, either sign"),
+            ("time_base", "stretch", "every measured channel sampled on a time base (1 + e) faster than the "
+                                     "command's (a logger clock, or a stated sample rate, off by e)")):
+        lo, hi, typ = RECORDING_SIZES[kind]
+        out.append(Candidate(name, doc, (Knob(name, recording.UNIT[kind], lo, hi, typ, 0.0,
+                                              output=Recorded(kind, every), doc=doc),), RECORDING_CHAIN))
     return tuple(out)
 
 

@@ -290,8 +290,7 @@ def _kinematic_ratio(rnd: Round, cand: Candidate, values: np.ndarray) -> float |
     """Kinematic mismatch with / without a velocity recording effect (None: not one, or no evidence)."""
     if rnd.kinematics is None or cand.kind != RECORDING_CHAIN or cand.channel != "velocity":
         return None
-    kind = cand.name.removeprefix("velocity_")
-    return rnd.kinematics.mismatch(kind, float(values[0])) / max(rnd.kinematic_base, 1e-300)
+    return rnd.kinematics.mismatch(cand.knobs[0].output.kind, float(values[0])) / max(rnd.kinematic_base, 1e-300)
 
 
 def _frequency_ratio(rnd: Round, out: np.ndarray) -> float | None:

@@ -173,7 +173,7 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
         # the kinematic evidence reads the raw recordings: it holds until an effect on a recorded
         # position or velocity has been selected (then the recordings are no longer what the model fits)
         kin = split.kinematics if not any(by_name[e].kind == RECORDING_CHAIN and by_name[e].channel in
-                                          ("position", "velocity") for e in selected) else None
+                                          ("position", "velocity", None) for e in selected) else None
         rnd = Round(number, model, base, split.r_fit, r_held, out_base, settings, held_noise, tuple(selected),
                     structured, split.frequency, kin, response)
         anchors = [base.x] if number > 1 else [base.x, before.x]

@@ -8,8 +8,12 @@ one needs no new simulation. For a channel y(t) sampled at ``rate`` [Hz]:
 * skew     y(t - d), d > 0 late, sub-sample by linear interpolation, ends held   [s]
 * lag      first-order sensor, tau dy_m/dt = y - y_m, exact for an input linear between
            samples (first-order hold), y_m(0) = y(0)   [s]
+* drift    y + r t, t from the record's first sample (a transducer zero that wanders with
+           temperature, a charge amplifier's leak)   [channel unit / s]
+* stretch  y((1 + e) t): the channel sampled on a time base (1 + e) faster than the command's
+           (a logger clock or a stated sample rate off by e), sub-sample, ends held   [-]
 
-All four are linear in y, so their order in a chain does not matter (up to the ends).
+All are linear in y, so their order in a chain does not matter (up to the ends).
 """
 from __future__ import annotations
 
@@ -18,8 +22,8 @@ from scipy.signal import lfilter
 
 #: The measurement-chain effects, each ``f(y, value, rate) -> y_recorded``, and their units
 #: relative to the channel's (``"channel"``: the channel's own unit).
-KINDS = ("offset", "scale", "skew", "lag")
-UNIT = {"offset": "channel", "scale": "-", "skew": "s", "lag": "s"}
+KINDS = ("offset", "scale", "skew", "lag", "drift")
+UNIT = {"offset": "channel", "scale": "-", "skew": "s", "lag": "s", "drift": "channel/s", "stretch": "-"}
 
 
 def offset(y: np.ndarray, b: float, rate: float) -> np.ndarray:
@@ -54,7 +58,20 @@ def lag(y: np.ndarray, tau: float, rate: float) -> np.ndarray:
     return lfilter([b0, b1], [1.0, -a], y - y[0]) + y[0]
 
 
-APPLY = {"offset": offset, "scale": scale, "skew": skew, "lag": lag}
+def drift(y: np.ndarray, r: float, rate: float) -> np.ndarray:
+    """``y`` + r t [channel unit], t [s] from the first sample."""
+    return y + r * (np.arange(len(y)) / rate)
+
+
+def stretch(y: np.ndarray, e: float, rate: float) -> np.ndarray:
+    """``y`` sampled on a time base (1 + e) too fast: sample k holds y(k (1 + e) / rate)."""
+    if e == 0.0:
+        return y
+    k = np.arange(len(y), dtype=float)
+    return np.interp(k * (1.0 + e), k, y)
+
+
+APPLY = {"offset": offset, "scale": scale, "skew": skew, "lag": lag, "drift": drift, "stretch": stretch}
 
 
 def undo(kind: str, y: np.ndarray, value: float, rate: float) -> np.ndarray:
@@ -70,6 +87,11 @@ def undo(kind: str, y: np.ndarray, value: float, rate: float) -> np.ndarray:
         return y / (1.0 + value)
     if kind == "skew":
         return skew(y, -value, rate)
+    if kind == "drift":
+        return drift(y, -value, rate)
+    if kind == "stretch":
+        k = np.arange(len(y), dtype=float)
+        return np.interp(k / (1.0 + value), k, y)
     if value <= 0.0:
         return y
     a = float(np.exp(-1.0 / (rate * value)))

@@ -1,0 +1,99 @@
+"""The discrepancy loop on FDI tests altered in ways the bench does not list (a generalisation probe).
+
+    python tools/unlisted_effects.py [NAME ...]
+
+`eha-health bench discrepancy` scores the loop on one alteration per candidate, of one size,
+made by another numerical method than the candidate's. This script asks what the loop says of
+alterations with no candidate of their own, or of other sizes and shapes: a second-order
+transducer, a channel held at a quarter of the rate, a velocity differentiated from the position,
+a nonlinear pressure transducer, mains hum with a current offset, two recording effects on two
+channels, a different sign or size of the bench's ones, and nominal-parameter changes in the plant
+(valve flow gain, jack area, controller gain, hinge friction). One noisy reference run at faults
+(0.3, 0.4, 0.3), seed 777, up to two effects; per case the verdict, the selection, the first
+three candidates, the data checks, the largest fault-coefficient error before -> after and the
+loop's time. The figures of docs/discrepancy.md ("Alterations the bench does not list") come
+from this script.
+"""
+import sys
+
+import numpy as np
+from scipy.signal import cont2discrete, lfilter
+
+from eha_health.bench.discrepancy import all_late, drifting, fast_clock, lagged, late, offset, scaled
+from eha_health.discrepancy.loop import analyse_fdi_test
+from eha_health.physics.faults import Faults
+from eha_health.physics.model import simulate
+from eha_health.physics.params import load
+
+
+def second_order(r, channel="position", f_hz=30.0, zeta=0.6):
+    """``channel`` through a second-order transducer (natural frequency ``f_hz``, damping ``zeta``)."""
+    w = 2 * np.pi * f_hz
+    b, a, _ = cont2discrete(([w * w], [1.0, 2 * zeta * w, w * w]), 1.0 / r.sample_rate, method="bilinear")
+    y = getattr(r, channel)
+    setattr(r, channel, lfilter(np.ravel(b), a, y - y[0]) + y[0])
+    return r
+
+
+def held(r, channel="position", k=4):
+    """``channel`` sampled at 1/``k`` of the rate and held (zero-order hold)."""
+    y = getattr(r, channel)
+    setattr(r, channel, np.repeat(y[::k], k)[:len(y)])
+    return r
+
+
+def quadratic_pressure(r):
+    r.pressure = r.pressure + 0.05 * r.pressure ** 2 / 1e7      # +5 % of reading per 10 MPa
+    return r
+
+
+def differentiated_velocity(r):
+    r.velocity = np.gradient(r.position, r.t)
+    return r
+
+
+def hum_and_current_offset(r):
+    r.pressure = r.pressure + 2e5 * np.sin(2 * np.pi * 50.0 * r.t)
+    r.current = r.current + 2e-4
+    return r
+
+
+ALTERED = {
+    "position drift 30 um/s": lambda r: drifting(r, "position", 30e-6),
+    "every channel 3 ms late": lambda r: all_late(r, 3e-3),
+    "time base 1 % fast": lambda r: fast_clock(r, 0.01),
+    "position 2 ms early": lambda r: late(r, "position", -2e-3),
+    "position, 2nd-order transducer 30 Hz": second_order,
+    "position held at 250 Hz": held,
+    "pressure transducer quadratic": quadratic_pressure,
+    "velocity differentiated from position": differentiated_velocity,
+    "pressure 50 Hz hum + current offset 0.2 mA": hum_and_current_offset,
+    "current lag 2 ms + scale +5 %": lambda r: scaled(lagged(r, "current", 2e-3), "current", 0.05),
+    "pressure -0.3 MPa + position scale -2 %": lambda r: scaled(offset(r, "pressure", -3e5), "position", -0.02),
+}
+PLANT = {
+    "valve flow gain -10 %": lambda p: p.updated("hydraulics", flow_gain=p.hydraulics.flow_gain * 0.9),
+    "jack area +5 %": lambda p: p.updated("jack", area=p.jack.area * 1.05),
+    "controller gain +15 %": lambda p: p.updated("controller", kp=p.controller.kp * 1.15),
+    "hinge friction 300 -> 200 N": lambda p: p.updated("surface", hinge_friction=200.0),
+}
+
+
+def main() -> None:
+    names = sys.argv[1:] or list(ALTERED) + list(PLANT)
+    ref, faults = load("reference"), Faults(0.3, 0.4, 0.3)
+    for name in names:
+        p = PLANT.get(name, lambda p: p)(ref).with_effect_names(["sensor_noise"])
+        r = simulate(params=p, faults=faults, seed=777)
+        if name in ALTERED:
+            r = ALTERED[name](r)
+        rep = analyse_fdi_test(r, max_effects=2, truth=faults.as_dict())
+        first = ", ".join(c.name for c in rep.candidates[:3])
+        print(f"{name}: {rep.verdict}; selected {', '.join(rep.selected) or '-'}; first {first}; "
+              f"max|dK| {max(rep.before.errors.values()):.3f} -> {max(rep.after.errors.values()):.3f}; "
+              f"{rep.wall_time_s:.1f} s" + (f"; checks: {'; '.join(rep.data_checks)}" if rep.data_checks else ""),
+              flush=True)
+
+
+if __name__ == "__main__":
+    main()
