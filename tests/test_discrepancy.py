@@ -291,6 +291,7 @@ def test_committed_undeclared_bags(bag, tmp_path):
 def test_committed_noisy_bag_has_no_missing_effect():
     out = _cli_json("discrepancy", str(BAGS / "combined_noisy.mcap"), "--json", "--max-effects", "1")
     assert out["selected"] == [] and out["verdict"] == NO_MISSING_EFFECT
+    assert out["mode"] == "fdi" and "mode_reason" not in out
     assert {"before", "after", "candidates", "selected"} <= set(out)
     assert set(out["before"]["rms"]) == {"position", "velocity", "pressure", "current"}
 
@@ -391,6 +392,7 @@ def test_real_rig_import_and_loop(tmp_path):
     assert p.returncode == 0, p.stderr
     out = _cli_json("discrepancy", str(csv), "--json", timeout=900)
     assert out["mode"] == "rig"
+    assert out["mode_reason"] == "channel velocity is not in the record (no finite sample)"   # why not fdi
     bag = tmp_path / "mts.mcap"     # the same record through the MCAP topic contract reads back the same
     p = subprocess.run(CLI + ["import", str(MTS), "--map", str(ROOT / "maps/mts_servohydraulic.yaml"),
                               "--out", str(bag)], capture_output=True, text=True, cwd=ROOT)

@@ -296,3 +296,18 @@ def test_fast_deterministic_and_ga_beat_the_papers_table_6():
             assert all(g < p for g, p in zip(got, PAPER_TABLE6[row])), (m, row, got)
     assert res["methods"]["fast"]["max_abs_err_all"] <= 0.005
     assert res["methods"]["fast"]["guard_fired"] == 0
+
+
+def test_record_names_an_absent_channel_and_the_first_bad_sample():
+    from eha_health.identification.record import Record
+    from eha_health.signals.channels import MEASURED
+    r = simulate("reference")
+    r.current = np.full_like(r.current, np.nan)             # a CSV without the column reads as NaN
+    with pytest.raises(ValueError, match="channel current is not in the record"):
+        Record.from_response(r, MEASURED)
+    r = simulate("reference")
+    r.pressure = r.pressure.copy()
+    r.pressure[2000:2003] = np.inf
+    with pytest.raises(ValueError, match=r"channel pressure has 3 NaN or inf samples, the first at t = 2 s"):
+        Record.from_response(r, MEASURED)
+    assert set(Record.from_response(r).channels) == {"position", "velocity", "current"}   # unnamed: left out

@@ -44,14 +44,15 @@ def cmd_diagnose(args) -> int:
     return 0
 
 
-def discrepancy_mode(r) -> str:
+def discrepancy_mode(r) -> tuple[str, str]:
+    """("fdi", "") when ``r`` is a whole FDI test with every channel, else ("rig", why it is not)."""
     from ..identification.record import fdi_record
     from ..physics.sequence import FDISequence
     try:
         fdi_record(r, FDISequence())
-    except ValueError:
-        return "rig"
-    return "fdi"
+    except ValueError as e:
+        return "rig", str(e)
+    return "fdi", ""
 
 
 def cmd_discrepancy(args) -> int:
@@ -63,7 +64,10 @@ def cmd_discrepancy(args) -> int:
     r, truth, notes = load_run(path, args.test, required=("t", "command", "position"))
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
-    mode = discrepancy_mode(r) if args.mode == "auto" else args.mode
+    mode, why = discrepancy_mode(r) if args.mode == "auto" else (args.mode, "")
+    if why:
+        # say it: a user who meant an FDI test should not have to guess why the faults are missing
+        print(f"note: analysed as a rig record, not an FDI test: {why}", file=sys.stderr)
     prog = progress(args)
     if mode == "fdi":
         rep = analyse_fdi_test(r, max_effects=args.max_effects, seed=args.seed, truth=truth, progress=prog)
@@ -76,6 +80,8 @@ def cmd_discrepancy(args) -> int:
     if args.json:
         out = rep.as_dict()
         out["mode"] = mode
+        if why:
+            out["mode_reason"] = why
         out["source"] = str(path)
         if truth is not None:
             out["truth"] = truth

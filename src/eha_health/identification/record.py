@@ -54,8 +54,12 @@ class Record:
             if c not in RECORDABLE:
                 raise ValueError(f"unknown channel {c!r}; known: {', '.join(RECORDABLE)}")
             v = np.asarray(getattr(r, c), float)
-            if not np.isfinite(v).all():
-                raise ValueError(f"channel {c} has NaN or inf samples")
+            bad = ~np.isfinite(v)
+            if bad.all():
+                raise ValueError(f"channel {c} is not in the record (no finite sample)")
+            if bad.any():
+                raise ValueError(f"channel {c} has {int(bad.sum())} NaN or inf samples, the first at "
+                                 f"t = {t[int(np.argmax(bad))]:g} s")
             chans[c] = v
         if not chans:
             raise ValueError("no measured channel: need at least one of " + ", ".join(MEASURED))
