@@ -1,0 +1,94 @@
+"""`prognose` on degradation laws the bench does not simulate (a generalisation probe).
+
+    python tools/prognose_laws.py [LAW ...] [--units 30] [--seed 3]
+
+`eha-health bench rul` scores the prognosis on four laws (linear, exponential, power, two-phase)
+through real diagnoses. This script asks how it does on mean paths of other shapes, with the
+diagnosis replaced by white noise (0.01, stated as the standard error): per law, ``--units``
+actuators, each a gamma wear process (scale 0.002) about thr h((t - t_on) / L) for the K_FSJ
+threshold 0.915, life L lognormal (median 1000 h, sd of log 0.3), onset after 5-25 % of L, tests
+every 60 h, the history cut at a uniform 40-80 % of L; the true RUL is the gamma path continued to
+the threshold. Prints, per law, the units given a RUL, the coverage of the 5-95 % interval
+(a unit without a RUL counts as a miss), the share of medians within +-20 % of the truth, and
+the 10/50/90 % quantiles of median/true. The figures of docs/prognostics.md ("Laws the bench
+does not simulate") come from this script.
+"""
+import argparse
+import csv
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from eha_health.prognostics import prognose
+
+THRESHOLD = 0.915        # K_FSJ threshold of `eha-health thresholds`
+NU = 0.002               # gamma-process scale: Var K = NU E K
+STD = 0.01               # diagnosis standard error
+
+LAWS = {
+    "linear": lambda s: s,
+    "exponential": lambda s: np.expm1(2.2 * s) / np.expm1(2.2),
+    "power2": lambda s: s ** 2,
+    "two_phase": lambda s: np.where(s < 0.5, s, 0.5 + 2.5 * (s - 0.5)) / 1.75,
+    "cubic": lambda s: s ** 3,
+    "sqrt": np.sqrt,
+    "log": lambda s: np.log1p(20.0 * s) / np.log1p(20.0),
+    "saturating": lambda s: -np.expm1(-3.0 * s) / -np.expm1(-3.0),
+    "logistic": lambda s: (1 / (1 + np.exp(-(s - 0.6) / 0.12)) - 1 / (1 + np.exp(5.0)))
+                          / (1 / (1 + np.exp(-0.4 / 0.12)) - 1 / (1 + np.exp(5.0))),
+}
+
+
+def fleet(law: str, units: int, rng: np.random.Generator) -> tuple[list[dict], dict]:
+    h = lambda s: LAWS[law](np.clip(s, 0.0, None))    # noqa: E731
+    rows, truth = [], {}
+    for u in range(units):
+        life = 1000.0 * np.exp(rng.normal(0.0, 0.3))
+        onset = rng.uniform(0.05, 0.25) * life
+        t = np.arange(0.0, onset + rng.uniform(0.4, 0.8) * life, 60.0)
+        dmu = np.diff(THRESHOLD * h((np.concatenate([[t[0]], t]) - onset) / life))
+        k = np.cumsum(rng.gamma(np.maximum(dmu, 1e-12) / NU, NU))
+        tt, kt = t[-1], k[-1]
+        while kt < THRESHOLD and tt < t[-1] + 20 * life:        # the same path, hour by hour
+            tt += 1.0
+            d = THRESHOLD * (h((tt - onset) / life) - h((tt - 1.0 - onset) / life))
+            kt += rng.gamma(max(float(d), 1e-12) / NU, NU)
+        truth[f"U{u}"] = tt - t[-1]
+        y = np.clip(k + rng.normal(0.0, STD, len(t)), 0.0, 1.5)
+        rows += [{"actuator_id": f"U{u}", "time_h": float(ti), "k_gm": 0.01, "k_fsj": float(yi), "k_bkl": 0.01,
+                  "std_gm": STD, "std_fsj": STD, "std_bkl": STD} for ti, yi in zip(t, y)]
+    return rows, truth
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("laws", nargs="*", metavar="LAW", help="of: " + ", ".join(LAWS) + " (default: all)")
+    ap.add_argument("--units", type=int, default=30)
+    ap.add_argument("--seed", type=int, default=3)
+    a = ap.parse_args()
+    unknown = set(a.laws) - set(LAWS)
+    if unknown:
+        ap.error(f"unknown law(s) {', '.join(sorted(unknown))}; known: {', '.join(LAWS)}")
+    with tempfile.TemporaryDirectory() as d:
+        for law in a.laws or list(LAWS):
+            rows, truth = fleet(law, a.units, np.random.default_rng(a.seed))
+            path = Path(d) / f"{law}.csv"
+            with open(path, "w", newline="") as f:
+                w = csv.DictWriter(f, list(rows[0]))
+                w.writeheader()
+                w.writerows(rows)
+            out = prognose(path)["actuators"]
+            got = [(out[u]["faults"]["fsj"], r) for u, r in truth.items()]
+            given = [(F, r) for F, r in got if F["rul_median_h"] is not None]
+            inside = sum((F["rul_p05_h"] or 0.0) <= r <= (F["rul_p95_h"] if F["rul_p95_h"] is not None else np.inf)
+                         for F, r in given)
+            close = sum(abs(F["rul_median_h"] - r) <= 0.2 * r for F, r in given)
+            q = np.percentile([F["rul_median_h"] / r for F, r in given], [10, 50, 90]) if given else [np.nan] * 3
+            print(f"{law:12s} RUL given {len(given):2d}/{len(got)}; 90 % interval covers {inside / len(got):4.0%}; "
+                  f"median within 20 % {close / len(got):4.0%}; median/true 10/50/90 % {q[0]:.2f} / {q[1]:.2f} / {q[2]:.2f}",
+                  flush=True)
+
+
+if __name__ == "__main__":
+    main()
