@@ -1,6 +1,6 @@
 """`prognose` on degradation laws the bench does not simulate (a generalisation probe).
 
-    python tools/prognose_laws.py [LAW ...] [--units 30] [--seed 3]
+    python tools/prognose_laws.py [LAW ...] [--units 30] [--seed 3] [--settings YAML]
 
 `eha-health bench rul` scores the prognosis on four laws (linear, exponential, power, two-phase)
 through real diagnoses. This script asks how it does on mean paths of other shapes, with the
@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from eha_health.prognostics import prognose
+from eha_health.prognostics.config import load_settings
 
 THRESHOLD = 0.915        # K_FSJ threshold of `eha-health thresholds`
 NU = 0.002               # gamma-process scale: Var K = NU E K
@@ -66,10 +67,12 @@ def main() -> None:
     ap.add_argument("laws", nargs="*", metavar="LAW", help="of: " + ", ".join(LAWS) + " (default: all)")
     ap.add_argument("--units", type=int, default=30)
     ap.add_argument("--seed", type=int, default=3)
+    ap.add_argument("--settings", help="prognostics settings YAML merged over data/prognostics.yaml")
     a = ap.parse_args()
     unknown = set(a.laws) - set(LAWS)
     if unknown:
         ap.error(f"unknown law(s) {', '.join(sorted(unknown))}; known: {', '.join(LAWS)}")
+    settings = load_settings(a.settings) if a.settings else None
     with tempfile.TemporaryDirectory() as d:
         for law in a.laws or list(LAWS):
             rows, truth = fleet(law, a.units, np.random.default_rng(a.seed))
@@ -78,7 +81,7 @@ def main() -> None:
                 w = csv.DictWriter(f, list(rows[0]))
                 w.writeheader()
                 w.writerows(rows)
-            out = prognose(path)["actuators"]
+            out = prognose(path, settings=settings)["actuators"]
             got = [(out[u]["faults"]["fsj"], r) for u, r in truth.items()]
             given = [(F, r) for F, r in got if F["rul_median_h"] is not None]
             inside = sum((F["rul_p05_h"] or 0.0) <= r <= (F["rul_p95_h"] if F["rul_p95_h"] is not None else np.inf)

@@ -73,6 +73,7 @@ class ModelSettings:
     names: tuple = _f("-", "degradation models fitted (linear, exponential, power, wiener)")
     criterion: str = _f("-", "model weights: aicc (Akaike weights) or evidence (Bayesian evidence on the grid)")
     aic_delta_max: float = _f("-", "criterion difference beyond which a model gets no weight")
+    stochastic_prior: float = _f("-", "prior probability of the Wiener model (the path models share the rest)")
     exponential_rate: tuple = _f("1/span", "grid of the exponential model's rate b")
     power_exponent: tuple = _f("-", "grid of the power model's exponent b")
     wiener_exponential_rate: tuple = _f("1/span", "grid of the Wiener model's exponential time-scale rate b")
@@ -220,6 +221,8 @@ def _validate(s: Settings) -> None:
     known = {"linear", "exponential", "power", "wiener"}
     if not s.models.names or set(s.models.names) - known:
         raise PrognosticsError(f"models.names: choose from {sorted(known)}")
+    if not 0 < s.models.stochastic_prior < 1:
+        raise PrognosticsError(f"models.stochastic_prior must be within (0, 1), got {s.models.stochastic_prior}")
     if not 0 < s.thresholds.default <= s.thresholds.search_max <= FAULT_UPPER:
         raise PrognosticsError(f"thresholds: need 0 < default <= search_max <= {FAULT_UPPER} (the identification bound)")
 

@@ -30,8 +30,9 @@ after conditioning l0 on y_0 exactly):
     log L_ML  = log p_int - log(2 pi) - 1/2 log det P_beta             (Laplace, exact here)
 
 with P_beta the final posterior covariance of (l0, a). Models are compared by
-AICc = -2 max log L_ML + 2k + 2k(k+1)/(n-k-1) and averaged with Akaike weights
-w_m ~ exp(-Delta_m / 2), models with Delta_m > ``aic_delta_max`` dropped.
+AICc = -2 max log L_ML + 2k + 2k(k+1)/(n-k-1), or by their evidence (the default), and averaged
+with weights w_m ~ prior_m exp(-Delta_m / 2), models with Delta_m > ``aic_delta_max`` dropped; the
+prior (:func:`model_prior`) gives the Wiener model ``stochastic_prior`` and the path models the rest.
 
 The filter is written out for the 3-state case and vectorised over (series x grid cells)
 by hand: filterpy's KalmanFilter runs one filter per Python object, and a fleet needs
@@ -335,13 +336,25 @@ def fit_models(series: list[Series], ms: ModelSettings) -> tuple[list[ModelFit],
     return fits, model_weights(fits, ms)
 
 
+def model_prior(names, stochastic_prior: float) -> np.ndarray:
+    """Prior model probabilities: ``stochastic_prior`` for the Wiener model, the rest shared by the
+    path models. Each path model is the Wiener model's sigma = q = 0 limit, whose interval holds no
+    process noise; one prior per model would put 3:1 on "no process noise" before any data."""
+    names = list(names)
+    if "wiener" not in names or len(names) == 1:
+        return np.full(len(names), 1.0 / len(names))
+    return np.array([stochastic_prior if n == "wiener" else (1.0 - stochastic_prior) / (len(names) - 1)
+                     for n in names])
+
+
 def model_weights(fits: list[ModelFit], ms: ModelSettings) -> np.ndarray:
-    """Weights [S, n_models] by the settings' criterion: AICc, or -2 log evidence (Bayesian)."""
+    """Weights [S, n_models] by the settings' criterion -- AICc, or -2 log evidence (Bayesian) --
+    with the prior model probabilities (:func:`model_prior`)."""
     if ms.criterion == "evidence":
         crit = np.stack([-2 * f.log_evidence for f in fits], -1)
     else:
         crit = np.stack([f.aicc for f in fits], -1)
-    return akaike_weights(crit, ms.aic_delta_max)
+    return akaike_weights(crit - 2.0 * np.log(model_prior(ms.names, ms.stochastic_prior)), ms.aic_delta_max)
 
 
 # ----------------------------------------------------------------------------- onset
