@@ -296,6 +296,22 @@ def test_committed_noisy_bag_has_no_missing_effect():
     assert set(out["before"]["rms"]) == {"position", "velocity", "pressure", "current"}
 
 
+def test_an_fdi_test_without_a_channel_is_analysed_as_a_rig_and_says_why(tmp_path):
+    r = simulate(faults=Faults(0.2, 0.3, 0.1))
+    cols = ["t", "command", "position", "velocity", "pressure"]          # no current column
+    csv = tmp_path / "no_current.csv"
+    np.savetxt(csv, np.column_stack([getattr(r, c) for c in cols]), delimiter=",", header=",".join(cols), comments="")
+    p = subprocess.run(CLI + ["discrepancy", str(csv), "--json", "--max-effects", "0"], capture_output=True, text=True,
+                       timeout=300, cwd=ROOT)
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert out["mode"] == "rig" and out["mode_reason"] == "channel current is not in the record (no finite sample)"
+    assert "note: analysed as a rig record, not an FDI test: channel current is not in the record" in p.stderr
+    p = subprocess.run(CLI + ["discrepancy", str(csv), "--mode", "fdi"], capture_output=True, text=True, timeout=300,
+                       cwd=ROOT)
+    assert p.returncode == 2 and "channel current is not in the record" in p.stderr
+
+
 # ----------------------------------------------------------------------------- import
 def _write(tmp_path, name, text):
     p = tmp_path / name
