@@ -17,7 +17,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.signal import cont2discrete, lfilter
 
-from ..discrepancy.candidates import BY_NAME, RECORDING_CHAIN
+from ..discrepancy.candidates import BY_NAME
 from ..discrepancy.loop import analyse_fdi_test
 from ..discrepancy.report import UNEXPLAINED
 from ..physics.faults import Faults
@@ -142,9 +142,8 @@ def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, faul
         truth = f.as_dict()
         t0 = time.perf_counter()
         rep = analyse_fdi_test(r, max_effects=max(len(names), 1), truth=truth)
-        # the channels an effect acts on (an in-loop one: position; a whole-record one: all of them)
-        chans = {c for n in names for c in ((BY_NAME[n].channel,) if BY_NAME[n].channel else
-                                            MEASURED if BY_NAME[n].kind == RECORDING_CHAIN else ("position",))}
+        # the channels an effect acts on (an in-loop one: position; a recording one: those it changes)
+        chans = {c for n in names for c in (BY_NAME[n].recorded or ("position",))}
         chans = [c for c in MEASURED if c in chans] or ["position"]
         cases.append({
             "effect": "+".join(names) or None, "effects": list(names), "faults": truth, "selected": rep.selected,

@@ -69,6 +69,11 @@ class Candidate:
     #: (knob, simpler candidate): with ``knob`` at its off value this candidate *is* the simpler one
     nests: tuple[tuple[str, str], ...] = ()
 
+    @property
+    def recorded(self) -> tuple[str, ...]:
+        """The recorded channels a recording effect changes (none for an in-loop one)."""
+        return tuple(c for k in self.knobs if k.recording for c in k.output.channels)
+
     def applies_to(self, channels) -> bool:
         """A recording effect needs its channel in the record."""
         return self.channel is None or self.channel in channels
@@ -206,9 +211,8 @@ def corrected(response, model, x):
     for k, v in zip(model.knobs, np.asarray(x, float)):
         if k.recording and v != k.off:
             for c in k.output.channels:
-                y = getattr(r, c, None)
-                if y is not None:
-                    setattr(r, c, recording.undo(k.output.kind, np.asarray(y, float), float(v), response.sample_rate))
+                setattr(r, c, recording.undo(k.output.kind, np.asarray(getattr(r, c), float), float(v),
+                                             response.sample_rate))
     return r
 
 

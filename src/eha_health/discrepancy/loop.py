@@ -55,7 +55,7 @@ from ..signals.datachecks import check_channel
 from ..signals.frequency import ResponseError, response_errors
 from ..signals.kinematics import kinematics
 from ..signals.residuals import ResidualAnalysis, analyse, rest_noise_level
-from .candidates import CANDIDATES, RECORDING_CHAIN, Candidate, corrected
+from .candidates import CANDIDATES, Candidate, corrected
 from .evidence import (FREQUENCY, Result, Round, evaluate, prefer_consistent, prefer_simpler, rank, rediagnosed, rescan, retry_from_rediagnosis,
                        screen, screened, sparse_order)
 from .structure import locate
@@ -172,8 +172,8 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
             break
         # the kinematic evidence reads the raw recordings: it holds until an effect on a recorded
         # position or velocity has been selected (then the recordings are no longer what the model fits)
-        kin = split.kinematics if not any(by_name[e].kind == RECORDING_CHAIN and by_name[e].channel in
-                                          ("position", "velocity", None) for e in selected) else None
+        kin = split.kinematics if not any({"position", "velocity"} & set(by_name[e].recorded)
+                                          for e in selected) else None
         rnd = Round(number, model, base, split.r_fit, r_held, out_base, settings, held_noise, tuple(selected),
                     structured, split.frequency, kin, response)
         anchors = [base.x] if number > 1 else [base.x, before.x]
