@@ -63,6 +63,7 @@ class PrognosisSettings:
     error_p_fail: float = _f("-", "p_fail_next at or above which the monitor reports ERROR")
     onset_sigma: float = _f("-", "onset: rise over the first post-repair K in standard errors")
     onset_delta: float = _f("-", "onset: smallest rise of K")
+    onset_candidates: int = _f("-", "onset times weighed by the evidence, from the first post-repair test to the anchor")
     samples: int = _f("-", "Monte Carlo samples per RUL distribution")
     horizon_factor: float = _f("-", "RUL horizon in data spans")
     seed: int = _f("-", "seed of the Monte Carlo sampling")
@@ -216,6 +217,8 @@ def _validate(s: Settings) -> None:
         raise PrognosticsError("prognosis.min_tests must be >= 3 (a trend needs three points)")
     if not 0 < p.warn_p_fail <= p.error_p_fail <= 1:
         raise PrognosticsError("prognosis: need 0 < warn_p_fail <= error_p_fail <= 1")
+    if p.onset_candidates < 1:
+        raise PrognosticsError(f"prognosis.onset_candidates must be >= 1, got {p.onset_candidates}")
     if p.next_check_h <= 0 or p.samples < 100:
         raise PrognosticsError("prognosis: next_check_h must be > 0 h and samples >= 100")
     known = {"linear", "exponential", "power", "wiener"}

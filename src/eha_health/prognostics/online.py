@@ -77,7 +77,7 @@ class OnlineFault:
             self.g_last[m] = g
 
     def fit(self) -> tuple[list[ModelFit], np.ndarray]:
-        """Model fits and model weights as :func:`degradation.fit_models` returns them."""
+        """Model fits and model weights (:func:`degradation.model_weights`)."""
         n = np.array([len(self.tau)])
         fits = [summarise(self.grids[m], self.state[m], self.g_last[m], n) for m in self.grids]
         return fits, model_weights(fits, self.settings.models)

@@ -38,8 +38,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import PrognosticsError, Settings, load_settings
-from .degradation import (ModelFit, Series, degradation_segment, fit_models, shape_g,
-                          shape_g_inv)
+from .degradation import (ModelFit, Series, akaike_weights, degradation_segment, fit_models,
+                          shape_g, shape_g_inv)
 from .thresholds import FAULTS, threshold_values
 
 CHUNK = 256   # series per sampling chunk (memory ~ CHUNK x samples x 30 floats)
@@ -54,12 +54,13 @@ class Draws:
     z: np.ndarray        # [M, 4]
     z_ig: np.ndarray
     u_ig: np.ndarray
+    u_onset: np.ndarray
 
     @classmethod
     def make(cls, seed: int, fault_index: int, m: int) -> "Draws":
         rng = np.random.default_rng([seed, fault_index])
         return cls(rng.random(m), rng.random(m), rng.standard_normal((m, 4)), rng.standard_normal(m),
-                   rng.random(m))
+                   rng.random(m), rng.random(m))
 
 
 def inverse_gaussian(mean: np.ndarray, shape: np.ndarray, z: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -219,9 +220,13 @@ class FaultPrediction:
     std_last: float | None = None
     fleet_prior: bool = False
     reason: str | None = None
-    series: Series | None = None
+    series: Series | None = None          # since the onset anchor (n_points, fleet life)
+    candidates: list | None = None        # Series of every onset candidate (all post-repair points)
+    candidate_onsets_h: list | None = None
+    onset_weights: np.ndarray | None = None
     fits: list | None = None
-    fit_index: int | None = None
+    fit_index: int | None = None          # row of ``fits`` the trend is drawn from ...
+    trend_candidate: int = 0              # ... and its onset candidate
 
     def quantiles(self) -> np.ndarray | None:
         """(p05, median, p95) of the RUL [h]; inf beyond the horizon."""
@@ -323,25 +328,64 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
     tau = time_h[anchor:] - time_h[anchor]
     ser = Series(tau, k[anchor:], std[anchor:], float(tau[-1]))
     p.series = ser
+    p.candidates, p.candidate_onsets_h = [ser], [p.onset_h]
+    if anchor > 0 and s.prognosis.onset_candidates > 1:
+        # the anchor is where the rise shows above the noise, not where it began: a convex path
+        # starts long before.  Onsets from the first post-repair test to the anchor, each fitted to
+        # every post-repair point (g = 0 before its onset, so the same data and comparable
+        # evidence), are weighed by the evidence (uniform prior over the candidates).
+        js = np.unique(np.round(np.linspace(0, anchor, s.prognosis.onset_candidates)).astype(int))
+        p.candidates = [Series(time_h - time_h[j], k, std, float(time_h[-1] - time_h[j])) for j in js]
+        p.candidate_onsets_h = [float(time_h[j]) for j in js]
     return p, ser
 
 
 def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_index: int, s: Settings) -> None:
-    """Fit and sample every prepared series of one fault (in place)."""
+    """Fit and sample every prepared series of one fault (in place).
+
+    Each prediction's onset candidates are fitted in one batch; its weights over (onset, model)
+    come from the criteria of all its candidates at once (the same data), and every sample
+    draws its onset, then its model within that onset, from them.
+    """
     idx = [i for i, p in enumerate(preds) if p.series is not None]
     if not idx:
         return
-    series = [preds[i].series for i in idx]
-    fits, mw = fit_models(series, s.models)
+    series, owner = [], []
+    for j, i in enumerate(idx):
+        p = preds[i]
+        if p.candidates is None:          # a series set by hand: its own onset only
+            p.candidates, p.candidate_onsets_h = [p.series], [p.onset_h]
+        series += p.candidates
+        owner += [j] * len(p.candidates)
+    owner = np.asarray(owner)
+    fits, crit = fit_models(series, s.models)
     draws = Draws.make(s.prognosis.seed, fault_index, s.prognosis.samples)
-    samples = sample_rul(series, fits, mw, thresholds[idx], draws, s.prognosis.horizon_factor)
+    within = np.zeros_like(crit)
+    joint = []
+    for j in range(len(idx)):
+        rows = np.nonzero(owner == j)[0]
+        w = akaike_weights(crit[rows].ravel(), s.models.aic_delta_max).reshape(len(rows), -1)
+        wc = w.sum(1)
+        within[rows] = np.divide(w, wc[:, None], out=np.full_like(w, 1.0 / w.shape[1]), where=wc[:, None] > 0)
+        joint.append((rows, w, wc))
+    thr = np.array([thresholds[idx[j]] for j in owner])
+    samples = sample_rul(series, fits, within, thr, draws, s.prognosis.horizon_factor)
     names = [f.model for f in fits]
     for j, i in enumerate(idx):
         p = preds[i]
-        p.samples = samples[j]
-        p.model_weights = dict(zip(names, map(float, mw[j])))
-        p.model = names[int(np.argmax(mw[j]))]
-        p.fits, p.fit_index = fits, j
+        rows, w, wc = joint[j]
+        if len(rows) == 1:
+            p.samples = samples[rows[0]]
+        else:
+            c = _pick(np.cumsum(wc)[None, :] / max(wc.sum(), 1e-300), draws.u_onset)[0]
+            p.samples = samples[rows[c], np.arange(samples.shape[1])]
+        mw = w.sum(0)
+        p.model_weights = dict(zip(names, map(float, mw)))
+        best = int(np.argmax(mw))
+        p.model = names[best]
+        p.onset_weights = wc
+        c = int(np.argmax(w[:, best]))
+        p.fits, p.fit_index, p.trend_candidate = fits, int(rows[c]), c
 
 
 def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings) -> None:
@@ -466,7 +510,7 @@ def trend_band(p: FaultPrediction, tau_h: np.ndarray, z: float = 1.645) -> tuple
     j = p.fit_index
     m, P = f.mean[j, 0], f.cov[j, 0]
     kind, b = f.kind[j, 0], f.b[j, 0]
-    g = shape_g(kind, np.asarray(tau_h, float) / p.series.span_h, b)
+    g = shape_g(kind, np.asarray(tau_h, float) / p.candidates[p.trend_candidate].span_h, b)
     if f.model == "wiener":
         gn = f.g_now[j, 0]
         dg = np.maximum(g - gn, 0.0)
@@ -512,10 +556,10 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
             ax.axhline(p.threshold, color="C3", lw=1, label=f"threshold {p.threshold:.3f}")
         q = p.quantiles()
         if p.series is not None and q is not None and p.fits is not None:
-            t0 = p.onset_h
-            end = p.series.tau_h[-1] + (q[2] if np.isfinite(q[2]) else 2 * p.series.span_h)
+            cs, t0 = p.candidates[p.trend_candidate], p.candidate_onsets_h[p.trend_candidate]
+            end = cs.tau_h[-1] + (q[2] if np.isfinite(q[2]) else 2 * cs.span_h)
             wiener = p.model == "wiener"     # its past is the data; its trend starts at the last test
-            tau = np.linspace(p.series.tau_h[-1] if wiener else 0.0, end, 200)
+            tau = np.linspace(cs.tau_h[-1] if wiener else 0.0, end, 200)
             mean, lo, hi = trend_band(p, tau)
             ax.plot(t0 + tau, mean, color="C0", label=f"trend ({p.model})")
             ax.fill_between(t0 + tau, lo, hi, color="C0", alpha=0.2, label="90 % band")
