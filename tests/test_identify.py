@@ -196,6 +196,11 @@ def _write(path, t, cols=CSV_COLUMNS, mutate=None):
     ("order", "not strictly increasing"),
     ("short", "FDI sequence lasts"),
     ("gap", "uniformly spaced"),
+    ("gap", "the largest 11 ms at t = 1.999 s"),
+    ("ms", "time column in milliseconds"),
+    ("bar", ("channel pressure is 1e-05 x the healthy model's", "not in Pa -- in bar?")),
+    ("mm", ("channel position is 1e+03 x the healthy model's", "not in m -- in mm?")),
+    ("mA", ("channel current is", "x the healthy model's", "not in A -- in mA?")),
 ])
 def test_cli_diagnose_bad_input_exits_2(tmp_path, kind, match):
     f = tmp_path / f"{kind}.csv"
@@ -212,10 +217,16 @@ def test_cli_diagnose_bad_input_exits_2(tmp_path, kind, match):
         t2 = t.copy()
         t2[2000:] += 0.01
         _write(f, t2)
+    elif kind == "ms":
+        _write(f, t * 1e3)
+    else:       # one channel in another unit (the reference's faults 0: gains are the factors)
+        col = {"bar": 4, "mm": 2, "mA": 5}[kind]
+        factor = {"bar": 1e-5, "mm": 1e3, "mA": 1e3}[kind]
+        _write(f, t, mutate=lambda d: d.__setitem__((slice(None), col), d[:, col] * factor))
     p = _cli("diagnose", str(f), "--json")
     assert p.returncode == 2, p.stdout + p.stderr
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1 and match in lines[0], p.stderr
+    assert len(lines) == 1 and all(m in lines[0] for m in ((match,) if isinstance(match, str) else match)), p.stderr
 
 
 def test_cli_diagnose_bad_options(tmp_path, combined):

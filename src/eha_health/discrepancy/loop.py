@@ -49,6 +49,7 @@ from ..identification.record import Record
 from ..identification.residual import CHANNEL_COLUMNS, Residual
 from ..identification.result import FitResult
 from ..identification.uncertainty import autocorr_inflation
+from ..identification.units import check_units
 from ..physics.params import ModelParams, load
 from ..physics.sequence import FDISequence
 from ..signals.datachecks import check_channel
@@ -325,6 +326,7 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     x = model.off() if x_start is None else np.asarray(x_start, float)
     if len(x) != len(base_knobs):
         raise ValueError(f"x_start has {len(x)} values for {len(base_knobs)} base knobs")
+    check_units(model, x)
 
     say("fitting the model as it stands")
     before = least_squares(Problem(model, split.r_final), x)

@@ -58,6 +58,7 @@ from .knobs import FAULT_KNOBS
 from .local import compass, least_squares, powell
 from .problem import KnobModel, Problem
 from .record import fdi_record
+from .units import check_units
 from .residual import Residual
 from .result import FitResult
 from .sequential import sequential
@@ -331,6 +332,7 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
     seq = sequence or FDISequence()
     record = fdi_record(response, seq)
     model = KnobModel(params if params is not None else load("monitor"), FAULT_KNOBS, record)
+    check_units(model)
     objective = make_fitness(fitness, record, seq)
     problem = Problem(model, objective)
     start = start if start is not None else start_point(model, response, seq)

@@ -74,16 +74,17 @@ class KnobModel:
     def packed(self, x) -> np.ndarray:
         return pack(*self.params_at(x))
 
-    def run(self, X) -> np.ndarray:
+    def run(self, X, count: bool = True) -> np.ndarray:
         """Outputs ``[len(X), n, N_OUT]`` of the knob vectors ``X`` (rows), in parallel.
 
         Rows that differ only in measurement-chain knobs share one simulation (``runs`` counts
-        simulations): such a knob's Jacobian column or grid scan costs no model run.
+        simulations, unless ``count`` is False: a data check, not part of a fit): such a knob's
+        Jacobian column or grid scan costs no model run.
         """
         X = np.atleast_2d(np.asarray(X, float))
         P = np.stack([self.packed(x) for x in X])
         P_u, inverse = np.unique(P, axis=0, return_inverse=True)
-        self.runs += len(P_u)
+        self.runs += len(P_u) if count else 0
         cmd, load, n0 = self.record.command, self.record.load, 0
         if self.record.preroll is not None:
             n0 = len(self.record.preroll)

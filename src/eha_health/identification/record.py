@@ -19,6 +19,9 @@ from ..signals.response import Response
 #: Channels a record may hold: the measured ones, and the spool of a simulated response.
 RECORDABLE = MEASURED + ("spool",)
 MIN_SAMPLES = 100
+#: [Hz] slowest sampling a record may have (the FDI test's 4 Hz sine and the loop's ~10 Hz
+#: bandwidth need tens of samples per period)
+MIN_RATE_HZ = 50.0
 
 
 @dataclass
@@ -44,8 +47,16 @@ class Record:
         if (dt <= 0).any():
             raise ValueError("time axis is not strictly increasing")
         rate = 1.0 / float(np.median(dt))
-        if np.max(np.abs(dt - np.median(dt))) > 0.01 * np.median(dt):
-            raise ValueError(f"samples are not uniformly spaced (median rate {rate:.1f} Hz): gaps or jitter")
+        dev = np.abs(dt - np.median(dt))
+        if np.max(dev) > 0.01 * np.median(dt):
+            k = int(np.argmax(dev))
+            raise ValueError(f"samples are not uniformly spaced (median rate {rate:.1f} Hz): gaps or jitter; "
+                             f"{int((dev > 0.01 * np.median(dt)).sum())} step(s) off the median "
+                             f"{1e3 * np.median(dt):.4g} ms, the largest {1e3 * dt[k]:.4g} ms at t = {t[k]:g} s "
+                             f"(resample onto a uniform time base, or cut the record there)")
+        if rate < MIN_RATE_HZ:
+            raise ValueError(f"sample rate {rate:.3g} Hz is below {MIN_RATE_HZ:g} Hz, too slow for an actuator's "
+                             f"dynamics: is the time column in milliseconds? (t must be in seconds)")
         if not np.isfinite(r.command).all():
             raise ValueError("channel command has NaN or inf samples")
         names = channels or tuple(c for c in MEASURED if np.isfinite(getattr(r, c)).all())
