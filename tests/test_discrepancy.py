@@ -484,3 +484,32 @@ def test_monitor_node_warns_when_no_candidate_explains_a_structured_residual(tmp
         r = g.run_test()
     assert r["discrepancy"].verdict == UNEXPLAINED
     assert r["level"] == "WARN" and UNEXPLAINED in r["message"] and "may be biased" in r["message"]
+
+
+@pytest.mark.parametrize("channel, factor, unit", [("pressure", 1e-5, "bar"), ("pressure", 1e-6, "MPa"),
+                                                   ("position", 1e3, "mm"), ("velocity", 1e3, "mm/s"),
+                                                   ("current", 1e3, "mA")])
+def test_a_channel_in_another_unit_is_refused_before_the_loop(channel, factor, unit):
+    """A pressure in bar was "explained" as pressure_scale -30 % with K_FSJ 0 for a true 0.4; now the
+    record is refused, naming the channel and the unit it looks like, before any fit. The same
+    record in SI passes the check (gains near 1 at faults 0.3 / 0.4 / 0.3 with noise)."""
+    from eha_health.identification.units import check_units, unit_gains
+    r = simulate(faults=Faults(0.3, 0.4, 0.3), params=load("reference").with_effect_names(["sensor_noise"]), seed=5)
+    m = KnobModel(load("monitor"), FAULT_KNOBS, Record.from_response(r))
+    assert all(1 / 3 < g < 3 for g in unit_gains(m).values()), unit_gains(m)
+    check_units(m)
+    assert m.runs == 0                                   # a data check, not a model run of a fit
+    setattr(r, channel, getattr(r, channel) * factor)
+    with pytest.raises(ValueError, match=rf"channel {channel} is .* not in .* -- in {unit}\?"):
+        analyse_fdi_test(r, max_effects=1)
+
+
+def test_an_effect_fitted_onto_its_bound_is_said_in_the_verdict():
+    """One chamber's pressure recorded as P12 (0.5 P12 + 10.35 MPa, half the supply): the loop's
+    nearest candidates are an offset and a scale, and the scale ends on its -30 % bound with K_FSJ
+    far off; the verdict says so and that the coefficients are not to be trusted."""
+    r = simulate(faults=Faults(0.3, 0.4, 0.3), params=load("reference").with_effect_names(["sensor_noise"]), seed=5)
+    r.pressure = 0.5 * r.pressure + 10.35e6
+    rep = analyse_fdi_test(r, max_effects=2)
+    assert "pressure_scale" in rep.selected
+    assert "pressure_scale on its bound -0.3" in rep.verdict and "not to be trusted" in rep.verdict

@@ -345,8 +345,12 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
         after, spent = _final_fit(split, model, base, len(base_knobs), rediagnose)
         runs += spent
         res_after = split.analyse(after.output, selected)
+    bound = _on_bounds(model, after.x, len(base_knobs)) if selected else []
     verdict = ("model lacks: " + ", ".join(selected)) if selected else \
         UNEXPLAINED if res_before.structured else NO_MISSING_EFFECT
+    if bound:
+        verdict += " (" + "; ".join(f"{k.name} on its bound {v:.4g}" for k, v in bound) + \
+            ": the effect is beyond the candidate's range, the coefficients with it are not to be trusted)"
     unexplained = locate(split.r_final, before, res_before, split.segments, len(base_knobs)) \
         if verdict == UNEXPLAINED else None
     checks = [line for c, y in record.channels.items()
@@ -359,6 +363,18 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
         fitted_before=split.channels(before.output), fitted_after=split.channels(after.output),
         split_time_s=float(record.t[split.index]), unexplained=unexplained, data_checks=checks,
         pruned=[e.name for e in evidence if not e.refit], frequency_evidence=frequency)
+
+
+def _on_bounds(model: KnobModel, x, n_base: int) -> list[tuple[Knob, float]]:
+    """The effect knobs (after the ``n_base`` base knobs) fitted onto a bound of their range (within
+    0.1 % of it): the data want more than the candidate can give (measured: a single chamber's
+    pressure recorded as P12, 0.5 P12 + 10 MPa, ended on pressure_scale -0.3 with K_FSJ 0.13 for
+    a true 0.4)."""
+    out = []
+    for k, v in zip(model.knobs[n_base:], np.asarray(x, float)[n_base:]):
+        if min(v - k.lo, k.hi - v) <= 1e-3 * (k.hi - k.lo):      # a bounded fit stops just inside
+            out.append((k, float(v)))
+    return out
 
 
 def fdi_segments(record: Record, sequence: FDISequence | None = None) -> dict[str, np.ndarray]:
