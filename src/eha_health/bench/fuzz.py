@@ -7,7 +7,8 @@ Each target generates inputs nobody wrote on purpose and feeds them to the real 
 * ``importer``: channel maps (columns, units, scales, keys) and the delimited text they read.
 * ``csv``: the Response CSV format, damaged (cut, characters replaced, headers shuffled).
 * ``history``: HISTORY.csv rows (values, columns, order) read and imported into a real SQLite
-  store; a damaged store file opened.
+  store, and what was taken in prognosed (ordered RUL quantiles, p_fail_next in [0, 1], or a
+  reason); a damaged store file opened.
 * ``messages``: node inputs (NaN / inf, wrong array sizes, stamps out of order, bad marks)
   through the real monitor and plant node callbacks (CDR bytes, as DDS delivers them).
 
@@ -346,7 +347,26 @@ class HistoryTarget:
                 return tally.refuse(e, (PrognosticsError,))
             if len(s.list_tests()) != len(before) + added:
                 raise AssertionError("the store does not hold what the import reported")
+        if added:
+            self._prognose(db)
         tally.handled += 1
+
+    @staticmethod
+    def _prognose(db: Path) -> None:
+        """What was taken in is prognosed: every fault and the overall answer a RUL with ordered
+        quantiles and p_fail_next in [0, 1], or a reason (fixed thresholds: no reference runs)."""
+        from ..prognostics.rul import prognose
+        obj = prognose(db, thresholds={"gm": 0.816, "fsj": 0.915, "bkl": 0.838})
+        for a, res in obj["actuators"].items():
+            for f, F in [*res["faults"].items(), ("overall", res["overall"])]:
+                q = [F["rul_p05_h"], F["rul_median_h"], F["rul_p95_h"]]
+                if F["rul_median_h"] is None and not F.get("reason"):
+                    raise AssertionError(f"{a} {f}: a null RUL without a reason")
+                got = [v for v in q if v is not None]
+                if got != sorted(got) or any(v < 0 for v in got):
+                    raise AssertionError(f"{a} {f}: RUL quantiles out of order or negative: {q}")
+                if F["p_fail_next"] is not None and not 0.0 <= F["p_fail_next"] <= 1.0:
+                    raise AssertionError(f"{a} {f}: p_fail_next {F['p_fail_next']} outside [0, 1]")
 
 
 # ----------------------------------------------------------------------------- node messages
