@@ -20,7 +20,7 @@ from eha_health.bench.fleet import simulate_fleet  # noqa: E402
 from eha_health.cli import main as cli_main  # noqa: E402
 from eha_health.fleet import (FleetError, diagnose_fleet, failures_path, find_recordings,  # noqa: E402
                               read_manifest)
-from eha_health.fleet.batch import dask_client  # noqa: E402
+from eha_health.fleet.batch import WORKER_ENVIRON, dask_client  # noqa: E402
 from waiting import wait_until  # noqa: E402
 from eha_health.fleet.recordings import Recording, complete_identity  # noqa: E402
 from eha_health.prognostics.store import HistoryStore, sha256_file  # noqa: E402
@@ -43,8 +43,37 @@ def bags(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def client():
+    before = {k: os.environ.get(k) for k in WORKER_ENVIRON}
     with dask_client(workers=2) as c:
+        # the nanny's pre-spawn environment stays out of this process (a numba compile here would
+        # otherwise raise: threads launched at one NUMBA_NUM_THREADS, the config read at another)
+        assert {k: os.environ.get(k) for k in WORKER_ENVIRON} == before
         yield c
+    assert {k: os.environ.get(k) for k in WORKER_ENVIRON} == before
+
+
+def test_numba_compiles_in_this_process_after_a_local_cluster():
+    """numba's threads launched here, then a LocalCluster (its nanny applies the workers'
+    NUMBA_NUM_THREADS=1 to this process's environment), then a function compiled here: numba
+    re-reads its config at every compile and raised when the variable had changed since its
+    threads started (prognose after a fleet batch, with its filter not yet in the cache)."""
+    import numba
+    import numpy as np
+
+    @numba.njit(parallel=True)
+    def total(x):
+        s = 0.0
+        for i in numba.prange(len(x)):
+            s += x[i]
+        return s
+    assert total(np.ones(8)) == 8.0                     # the thread pool is up
+    with dask_client(workers=1, setup=False) as c:
+        assert c.submit(int, "3").result(timeout=120) == 3
+
+    @numba.njit
+    def plus_one(x):                                    # compiled now, after the cluster
+        return x + 1
+    assert plus_one(1) == 2
 
 
 def test_simulate_is_reproducible_and_the_manifest_points_at_its_files(bags, tmp_path):

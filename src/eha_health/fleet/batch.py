@@ -27,6 +27,7 @@ import contextlib
 import csv
 import datetime as _dt
 import logging
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -112,6 +113,19 @@ class FailureLog:
         self.items.append({"path": row["path"], "reason": row["reason"]})
 
 
+def _environ_restorer(keys) -> Callable[[], None]:
+    """A function that puts the variables ``keys`` of this process's environment back as they are now."""
+    saved = {k: os.environ.get(k) for k in keys}
+
+    def restore() -> None:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+    return restore
+
+
 @contextlib.contextmanager
 def dask_client(scheduler: str | None = None, workers: int = 2, setup: bool = True):
     """A connected ``distributed.Client``: to ``scheduler`` if given, else to a new ``LocalCluster``
@@ -122,11 +136,19 @@ def dask_client(scheduler: str | None = None, workers: int = 2, setup: bool = Tr
     if scheduler is None and (not isinstance(workers, int) or workers < 1):
         raise FleetError(f"--workers must be a positive integer, got {workers!r}")
     with contextlib.ExitStack() as stack:
+        # Dask's nanny puts pre-spawn-environ into *this* process's environment before it spawns a
+        # worker, and leaves it there: NUMBA_NUM_THREADS=1 here then made the next numba compile in
+        # this process raise ("Cannot set NUMBA_NUM_THREADS to a different value once the threads
+        # have been launched"; seen with prognose after a fleet batch). Restored after the workers
+        # start and again when the cluster is gone (a nanny restarting a worker sets it again).
+        restore = _environ_restorer(WORKER_ENVIRON)
+        stack.callback(restore)
         stack.enter_context(dask.config.set(CLUSTER_CONFIG))
         if scheduler is None:
             cluster = stack.enter_context(LocalCluster(
                 n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                 dashboard_address=None, silence_logs=logging.ERROR))
+            restore()
             client = stack.enter_context(Client(cluster))
         else:
             try:
