@@ -7,7 +7,8 @@ made by another numerical method than the candidate's. This script asks what the
 alterations with no candidate of their own, or of other sizes and shapes: a second-order
 transducer, a channel held at a quarter of the rate, a velocity differentiated from the position,
 a nonlinear pressure transducer, mains hum with a current offset, two recording effects on two
-channels, a different sign or size of the bench's ones, and nominal-parameter changes in the plant
+channels, one chamber's pressure recorded as P12, a different sign or size of the bench's ones,
+and nominal-parameter changes in the plant
 (valve flow gain, jack area, controller gain, hinge friction). One noisy reference run at faults
 (0.3, 0.4, 0.3), seed 777, up to two effects; per case the verdict, the selection, the first
 three candidates, the data checks, the largest fault-coefficient error before -> after and the
@@ -52,6 +53,11 @@ def differentiated_velocity(r):
     return r
 
 
+def one_chamber_pressure(r):
+    r.pressure = 0.5 * r.pressure + 10.35e6        # P1 = Ps / 2 + P12 / 2 recorded as P12
+    return r
+
+
 def hum_and_current_offset(r):
     r.pressure = r.pressure + 2e5 * np.sin(2 * np.pi * 50.0 * r.t)
     r.current = r.current + 2e-4
@@ -70,6 +76,7 @@ ALTERED = {
     "pressure 50 Hz hum + current offset 0.2 mA": hum_and_current_offset,
     "current lag 2 ms + scale +5 %": lambda r: scaled(lagged(r, "current", 2e-3), "current", 0.05),
     "pressure -0.3 MPa + position scale -2 %": lambda r: scaled(offset(r, "pressure", -3e5), "position", -0.02),
+    "one chamber's pressure recorded as P12": one_chamber_pressure,
 }
 PLANT = {
     "valve flow gain -10 %": lambda p: p.updated("hydraulics", flow_gain=p.hydraulics.flow_gain * 0.9),
