@@ -225,6 +225,8 @@ def test_onset_weighed_by_the_evidence(tmp_path):
     d, f = det["A"]["gm"], obj["actuators"]["A"]["faults"]["gm"]
     assert len(d.candidate_onsets_h) == 4 and d.candidate_onsets_h[0] == 0.0
     assert d.candidate_onsets_h[-1] == f["onset_h"] == 400.0 and d.onset_weights[-1] > 0.9
+    assert list(f["onset_posterior"]) == ["0", "150", "250", "400"] and f["onset_posterior"]["400"] > 0.9
+    assert json.loads(json.dumps(obj)) == obj
     assert f["rul_p05_h"] <= 1196.0 - 750.0 <= f["rul_p95_h"]
     for seed in range(3):
         _one_actuator(h, lambda t: 0.02 + 0.796 * np.expm1(2.5 * t / 1000.0) / np.expm1(2.5), 0.004, seed)

@@ -265,6 +265,9 @@ def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None) 
         d["model_weights"] = {k: round(v, 3) for k, v in p.model_weights.items() if v > 0}
     d.update({"n_points": p.n_points, "onset_h": _num(p.onset_h), "k_last": _num(p.k_last, 4),
               "std_last": _num(p.std_last, 5), "fleet_prior": p.fleet_prior})
+    if p.onset_weights is not None and len(p.onset_weights) > 1:
+        # where the wear began: the onset candidates and their posterior weights
+        d["onset_posterior"] = {f"{t:g}": round(float(w), 3) for t, w in zip(p.candidate_onsets_h, p.onset_weights)}
     if p.reason:
         d["reason"] = p.reason
     return d
@@ -494,7 +497,7 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
             o["p_first"] = {f: round(v, 4) for f, v in ov.p_first.items()}
         if getattr(ov, "note", None):
             o["note"] = ov.note
-        for key in ("n_points", "onset_h", "k_last", "std_last"):
+        for key in ("n_points", "onset_h", "k_last", "std_last", "onset_posterior"):
             o.pop(key, None)
         out[a] = {"faults": faults, "overall": o}
         detail[a] = {**preds[a], "overall": ov}
