@@ -1,8 +1,10 @@
 """Remaining useful life as a distribution, per fault and overall (CLI: ``eha-health prognose``).
 
-For each fault of each actuator, the tests since the fault's last repair; its degradation
-segment from the onset anchor (:func:`degradation.degradation_segment`); the models of
-:mod:`degradation` fitted and averaged; then S Monte Carlo samples of the RUL [h]:
+For each fault of each actuator, the tests since the fault's last repair; its onset anchor
+(:func:`degradation.degradation_segment`) and ``prognosis.onset_candidates`` onset times from the
+first post-repair test to it, each with the models of :mod:`degradation` fitted to every
+post-repair point; weights over (onset, model) from their criteria; then S Monte Carlo samples
+of the RUL [h], each drawing its onset first:
 
 * model m drawn with its Akaike weight, grid cell with its posterior weight, and
   beta = (l0, a, u_now) ~ N(mean, cov) of that cell (the filter's posterior: it carries
