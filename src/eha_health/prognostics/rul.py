@@ -535,8 +535,9 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
     """PNG of one actuator's prognosis (``prognose --plot FILE.png``); returns the prognose object.
 
     Per fault: the tests with 1-sd error bars, the fitted trend and its 90 % band, the
-    threshold, and the RUL distribution (histogram of the Monte Carlo samples, on the
-    time axis from the last test). ``actuator`` defaults to the first of the history.
+    threshold, the onset candidates shaded by their posterior weight, and the RUL distribution
+    (histogram of the Monte Carlo samples, on the time axis from the last test). ``actuator``
+    defaults to the first of the history.
     """
     import matplotlib
     matplotlib.use("Agg")
@@ -568,6 +569,10 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
             mean, lo, hi = trend_band(p, tau)
             ax.plot(t0 + tau, mean, color="C0", label=f"trend ({p.model})")
             ax.fill_between(t0 + tau, lo, hi, color="C0", alpha=0.2, label="90 % band")
+            if p.onset_weights is not None and len(p.onset_weights) > 1:   # where the wear began
+                for i, (tc, wc) in enumerate(zip(p.candidate_onsets_h, p.onset_weights)):
+                    ax.axvline(tc, color="C4", lw=2, alpha=0.15 + 0.85 * float(wc),
+                               label="onset (shade: posterior weight)" if i == 0 else None)
             fin = p.samples[np.isfinite(p.samples)]
             if len(fin):
                 ax2 = ax.twinx()
