@@ -188,7 +188,8 @@ def kf_step(st: np.ndarray, g_prev, g, y, r, sigma2, q, active=None) -> None:
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _filter_cells(st, g, y, r, mask, eta2, sig2, q, start):  # pragma: no cover - compiled
-    """:func:`kf_step` over points ``start..N-1`` for every series and cell, in place: the same
+    """:func:`kf_step` over points ``start..N-1`` for every series and cell, in place (the filter
+    every fit and the online tracker run; kf_step is the readable reference the tests hold it to): the same
     arithmetic in the same order, a scalar loop per cell instead of numpy temporaries per step
     (the temporaries were 2/3 of a 1000-actuator prognosis). st [NROW, S, C], g [S, C, N]."""
     n_s, n_c, n_k = g.shape
@@ -315,13 +316,13 @@ def grid_g(grid: Grid, t: np.ndarray) -> np.ndarray:
 def run_filters(grid: Grid, g: np.ndarray, y: np.ndarray, r: np.ndarray, mask: np.ndarray,
                 st: np.ndarray | None = None, start: int = 1) -> np.ndarray:
     """Filter every cell over points ``start..N-1`` (state ``st`` after point start-1, else fresh)."""
-    eta2, sig2, q = grid.eta[None, :] ** 2, grid.sigma[None, :] ** 2, grid.rate_sd[None, :] ** 2
+    eta2 = np.ascontiguousarray(grid.eta ** 2, float)
     if st is None:
-        st = kf_init(y[:, :1], r[:, :1] + eta2, (len(y), len(grid)))
+        st = kf_init(y[:, :1], r[:, :1] + eta2[None, :], (len(y), len(grid)))
     # padded rows (mask False): no time passes (g constant) and the point carries no information
     _filter_cells(st, np.ascontiguousarray(g, float), np.ascontiguousarray(y, float), np.ascontiguousarray(r, float),
-                  np.ascontiguousarray(mask, np.bool_), np.ascontiguousarray(grid.eta ** 2, float),
-                  np.ascontiguousarray(grid.sigma ** 2, float), np.ascontiguousarray(grid.rate_sd ** 2, float), start)
+                  np.ascontiguousarray(mask, np.bool_), eta2, np.ascontiguousarray(grid.sigma ** 2, float),
+                  np.ascontiguousarray(grid.rate_sd ** 2, float), start)
     return st
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from .config import Settings, load_settings
-from .degradation import ModelFit, Series, grid_g, kf_init, kf_step, model_grids, model_weights, summarise
+from .degradation import ModelFit, Series, grid_g, model_grids, model_weights, run_filters, summarise
 
 
 class OnlineFault:
@@ -49,15 +49,8 @@ class OnlineFault:
         self.state, self.g_last = {}, {}
         for m, grid in self.grids.items():
             g = grid_g(grid, t)
-            st = kf_init(y[:, :1], r[:, :1] + grid.eta[None, :] ** 2, (1, len(grid)))
-            for i in range(1, t.shape[1]):
-                self._step(grid, st, g[:, :, i - 1], g[:, :, i], y[0, i], r[0, i])
-            self.state[m], self.g_last[m] = st, g[:, :, -1]
-
-    @staticmethod
-    def _step(grid, st, g_prev, g, y, r) -> None:
-        kf_step(st, g_prev, g, y, r + grid.eta[None, :] ** 2, grid.sigma[None, :] ** 2,
-                grid.rate_sd[None, :] ** 2)
+            self.state[m] = run_filters(grid, g, y, r, np.ones(y.shape, bool))
+            self.g_last[m] = g[:, :, -1]
 
     def update(self, tau_h: float, k: float, std: float) -> None:
         """Add one test (hours since the anchor, K, its 1-sd); times must increase."""
@@ -71,10 +64,11 @@ class OnlineFault:
             self._refit()
             return
         t = np.array([[tau_h / self.span_h]])
+        y, r = np.array([[0.0, float(k)]]), np.array([[0.0, float(std) ** 2]])   # column 0: the state's point
         for m, grid in self.grids.items():
-            g = grid_g(grid, t)[:, :, 0]
-            self._step(grid, self.state[m], self.g_last[m], g, float(k), float(std) ** 2)
-            self.g_last[m] = g
+            g = np.concatenate([self.g_last[m][:, :, None], grid_g(grid, t)], -1)
+            run_filters(grid, g, y, r, np.ones(y.shape, bool), st=self.state[m], start=1)
+            self.g_last[m] = g[:, :, -1]
 
     def fit(self) -> tuple[list[ModelFit], np.ndarray]:
         """Model fits and model weights (:func:`degradation.model_weights`)."""
