@@ -46,13 +46,14 @@ class Record:
         dt = np.diff(t)
         if (dt <= 0).any():
             raise ValueError("time axis is not strictly increasing")
-        rate = 1.0 / float(np.median(dt))
-        dev = np.abs(dt - np.median(dt))
-        if np.max(dev) > 0.01 * np.median(dt):
-            k = int(np.argmax(dev))
+        step = float(np.median(dt))
+        rate = 1.0 / step
+        off = np.abs(dt - step) > 0.01 * step
+        if off.any():
+            k = int(np.argmax(np.abs(dt - step)))
             raise ValueError(f"samples are not uniformly spaced (median rate {rate:.1f} Hz): gaps or jitter; "
-                             f"{int((dev > 0.01 * np.median(dt)).sum())} step(s) off the median "
-                             f"{1e3 * np.median(dt):.4g} ms, the largest {1e3 * dt[k]:.4g} ms at t = {t[k]:g} s "
+                             f"{int(off.sum())} step(s) off the median "
+                             f"{1e3 * step:.4g} ms, the largest {1e3 * dt[k]:.4g} ms at t = {t[k]:g} s "
                              f"(resample onto a uniform time base, or cut the record there)")
         if rate < MIN_RATE_HZ:
             raise ValueError(f"sample rate {rate:.3g} Hz is below {MIN_RATE_HZ:g} Hz, too slow for an actuator's "

@@ -382,8 +382,8 @@ def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_i
         if len(rows) == 1:
             p.samples = samples[rows[0]]
         else:
-            c = _pick(np.cumsum(wc)[None, :] / max(wc.sum(), 1e-300), draws.u_onset)[0]
-            p.samples = samples[rows[c], np.arange(samples.shape[1])]
+            onset = _pick(np.cumsum(wc)[None, :] / max(wc.sum(), 1e-300), draws.u_onset)[0]   # per sample
+            p.samples = samples[rows[onset], np.arange(samples.shape[1])]
         mw = w.sum(0)
         p.model_weights = dict(zip(names, map(float, mw)))
         best = int(np.argmax(mw))
