@@ -242,11 +242,78 @@ def test_error_bars_add_the_measured_model_form_and_noise_error(combined):
     from eha_health.signals.residuals import noise_level
     d = diagnose(combined)
     me = model_error(estimate=d.faults.as_tuple())     # grows with the estimated damage
-    ne = noise_error(noise_level(combined.position))
+    ne = noise_error(noise_level(combined.position), estimate=d.faults.as_tuple())
     assert (me > 0).all() and (me >= model_error(estimate=(0.0, 0.0, 0.0))).all()
     for n, m, e in zip(NAMES, me, ne):
         assert d.std[n] ** 2 == pytest.approx(d.std_stat[n] ** 2 + m ** 2 + e ** 2, rel=1e-9)
     assert set(d.as_dict()["std_stat"]) == set(NAMES)
+
+
+def test_a_whole_test_method_states_its_own_measured_error(combined):
+    """The deterministic method stops anywhere in the whole-test cost's saw-tooth in K_BKL (measured
+    error ~0.002 at K_BKL 0.6 against ~0.0005 for fast): its error bars carry its own terms."""
+    from eha_health.identification.uncertainty import model_error, noise_error
+    from eha_health.physics.faults import FAULT_NAMES as NAMES
+    from eha_health.signals.residuals import noise_level
+    d = diagnose(combined, method="deterministic")
+    x = d.faults.as_tuple()
+    me = model_error(estimate=x, method="deterministic")
+    ne = noise_error(noise_level(combined.position), estimate=x, method="deterministic")
+    for n, m, e in zip(NAMES, me, ne):
+        assert d.std[n] ** 2 == pytest.approx(d.std_stat[n] ** 2 + m ** 2 + e ** 2, rel=1e-9)
+    assert me[2] > 2 * model_error(estimate=x)[2]         # the shipped file: backlash, per method
+    fast = diagnose(combined)
+    assert d.std["k_bkl"] > 2 * fast.std["k_bkl"]
+    assert abs(d.faults.k_bkl - 0.6) <= 3 * d.std["k_bkl"]
+
+
+def test_error_terms_are_read_per_method(tmp_path):
+    from eha_health.identification.uncertainty import model_error, noise_error
+    f = tmp_path / "me.yaml"
+    f.write_text("model_error_sd: {k_gm: 0.001, k_fsj: 0.002, k_bkl: 0.003}\n"
+                 "noise_reference_m: 5.0e-6\nnoise_error_sd: {k_gm: 0.0, k_fsj: 0.0, k_bkl: 0.001}\n"
+                 "methods:\n  deterministic:\n    model_error_sd: {k_gm: 0.004, k_fsj: 0.005, k_bkl: 0.006}\n"
+                 "    noise_reference_m: 5.0e-6\n"
+                 "    noise_error_sd: {k_gm: 0.0, k_fsj: 0.0, k_bkl: 0.002}\n"
+                 "    noise_error_variance: {k_gm: [0, 0, 0, 0], k_fsj: [0, 0, 0, 0], k_bkl: [0, 0, 0, 1.6e-5]}\n")
+    assert list(model_error(f, method="deterministic")) == [0.004, 0.005, 0.006]
+    assert list(model_error(f, method="ga")) == [0.001, 0.002, 0.003]     # not measured: the top level
+    assert list(model_error(f)) == [0.001, 0.002, 0.003]
+    # the noise excess grows with the estimate where the method's block says so, scaled with the noise
+    assert noise_error(1e-5, f, estimate=(0.1, 0.1, 0.25), method="deterministic") == pytest.approx([0, 0, 0.004])
+    assert noise_error(1e-5, f, method="deterministic") == pytest.approx([0, 0, 0.004])   # no estimate: the RMS
+    assert noise_error(1e-5, f, estimate=(0.1, 0.1, 0.25)) == pytest.approx([0, 0, 0.002])
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("model_error_sd: {k_gm: 0.001, k_fsj: 0.002, k_bkl: 0.003}\nmethods:\n  ga:\n    fit_floor: 1\n")
+    with pytest.raises(ValueError, match=r"methods.ga.*needs model_error_sd"):
+        model_error(bad, method="ga")
+
+
+def test_model_error_writer_keeps_each_methods_block(tmp_path):
+    """`bench paper --write-model-error` of a whole-test method writes its block under methods:
+    and keeps the default method's top level; NNLS recovers how the error grows with the damage."""
+    import yaml
+    from eha_health.bench.paper import model_error_yaml
+    from eha_health.identification.uncertainty import model_error, noise_error
+    rng = np.random.default_rng(5)
+    est = rng.uniform(0, 1, (200, 3))
+    sd = np.sqrt(1e-7 + 4e-6 * est[:, 2])                 # backlash error growing with K_BKL
+    err = rng.normal(0, 1, (200, 3)) * sd[:, None]
+    rows = [{"est": list(e), "abs_err": list(np.abs(a)), "std_stat": [1e-4] * 3, "noise_position": 5e-6,
+             "fit_cost": 1.0} for e, a in zip(est, err)]
+    shipped = yaml.safe_load(Path("src/eha_health/data/model_error.yaml").read_text())
+    clean = model_error_yaml({"methods": {"ga": {"rows": rows}}, "fitness": "lsq"}, "ga", "cmd", shipped)
+    data = yaml.safe_load(clean)
+    assert data["model_error_sd"] == shipped["model_error_sd"] and data["fit_floor"] == shipped["fit_floor"]
+    assert "fit_floor" not in data["methods"]["ga"]
+    f = tmp_path / "me.yaml"
+    f.write_text(clean)
+    assert model_error(f, estimate=(0.5, 0.5, 0.9), method="ga")[2] == pytest.approx(np.sqrt(1e-7 + 4e-6 * 0.9), rel=0.25)
+    noisy = model_error_yaml({"methods": {"ga": {"rows": rows}}, "fitness": "lsq", "noise": True}, "ga", "cmd", data)
+    f.write_text(noisy)
+    # the same errors again: nothing is left for the noise beyond the model-form and Gauss-Newton parts
+    assert noise_error(5e-6, f, estimate=(0.5, 0.5, 0.9), method="ga")[2] < 0.2 * np.sqrt(4e-6 * 0.9)
+    assert list(model_error(f)) == [shipped["model_error_sd"][n] for n in ("k_gm", "k_fsj", "k_bkl")]
 
 
 def test_model_error_grows_with_the_estimate_as_the_file_says(tmp_path):

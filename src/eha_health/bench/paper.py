@@ -284,62 +284,96 @@ def format_text(res: dict) -> str:
 
 
 def model_error_yaml(res: dict, method: str, command: str, previous: dict | None = None) -> str:
-    """data/model_error.yaml text from a bench of ``method``; the other block kept from ``previous``.
+    """data/model_error.yaml text with ``method``'s block re-made from a bench of it; the rest kept
+    from ``previous``. The default method's block is the file's top level, any other's sits under
+    ``methods: {name: ...}`` (:func:`~eha_health.identification.uncertainty.model_error`).
 
-    Clean bench: ``model_error_sd``, the RMS error per coefficient (all of it model mismatch).
-    Noisy bench: ``noise_error_sd``, the RMS error left after the model-form and Gauss-Newton
-    parts, sqrt(mean(err^2) - model_sd^2 - mean(sd_stat^2)), at the mean measured position
-    noise ``noise_reference_m``.
+    Clean bench: ``model_error_sd``, the RMS error per coefficient (all of it model mismatch and
+    where the search stops), ``model_error_variance`` (NNLS of the squared errors on 1 and the
+    estimates) and, for the default method, ``fit_floor``. Noisy bench: ``noise_error_sd``, the RMS
+    error left after the model-form and Gauss-Newton parts, sqrt(mean(err^2) - model_sd^2 -
+    mean(sd_stat^2)), at the mean measured position noise ``noise_reference_m``, and
+    ``noise_error_variance``: the same excess per run (scaled to that noise) by NNLS on the estimates.
     """
+    from ..identification.diagnose import DEFAULT_METHOD
     names = FAULT_NAMES
     data = dict(previous or {})
+    methods = dict(data.pop("methods", None) or {})
+    block = data if method == DEFAULT_METHOD else dict(methods.get(method) or {})
     rows = res["methods"][method]["rows"]
     e2 = np.array([r["abs_err"] for r in rows]) ** 2          # squared error per run and coefficient
     err2 = e2.mean(axis=0)
     est = np.clip(np.array([r["est"] for r in rows]), 0.0, None)
     design = np.column_stack([np.ones(len(rows)), est])     # 1, K_GM, K_FSJ, K_BKL of each run
     if res.get("noise"):
-        if "model_error_sd" not in data:
-            raise ValueError("measure the model-form error first (a clean bench), then the noise part")
-        if "model_error_variance" in data:
-            c = np.array([[float(v) for v in data["model_error_variance"][n]] for n in names])
-            model2 = np.mean(design @ c.T, axis=0)
+        if "model_error_sd" not in block:
+            raise ValueError(f"measure {method}'s model-form error first (a clean bench), then the noise part")
+        if "model_error_variance" in block:
+            c = np.array([[float(v) for v in block["model_error_variance"][n]] for n in names])
+            model2_run = design @ c.T
         else:
-            model2 = np.array([float(data["model_error_sd"][n]) for n in names]) ** 2
-        stat2 = np.mean(np.array([r["std_stat"] for r in rows]) ** 2, axis=0)
-        data["noise_error_sd"] = dict(zip(names, np.sqrt(np.maximum(err2 - model2 - stat2, 0.0))))
-        data["noise_reference_m"] = float(np.mean([r["noise_position"] for r in rows]))
-        data["noise_error_command"] = f"{command}  ({len(rows)} noisy runs, {method}, fitness {res['fitness']})"
+            model2_run = np.broadcast_to(np.array([float(block["model_error_sd"][n]) for n in names]) ** 2, e2.shape)
+        stat2_run = np.array([r["std_stat"] for r in rows]) ** 2
+        noise = np.array([r["noise_position"] for r in rows])
+        ref = float(np.mean(noise))
+        excess = e2 - model2_run - stat2_run
+        block["noise_error_sd"] = dict(zip(names, np.sqrt(np.maximum(excess.mean(axis=0), 0.0))))
+        scaled = excess / np.maximum(noise / ref, 1e-9)[:, None] ** 2    # to the reference noise
+        block["noise_error_variance"] = {n: list(nnls(design, scaled[:, i])[0]) for i, n in enumerate(names)}
+        block["noise_reference_m"] = ref
+        block["noise_error_command"] = f"{command}  ({len(rows)} noisy runs, {method}, fitness {res['fitness']})"
     else:
-        data["model_error_sd"] = dict(zip(names, np.sqrt(err2)))
-        data["model_error_variance"] = {n: list(nnls(design, e2[:, i])[0]) for i, n in enumerate(names)}
-        data["model_error_command"] = f"{command}  ({len(rows)} clean runs, {method}, fitness {res['fitness']})"
+        block["model_error_sd"] = dict(zip(names, np.sqrt(err2)))
+        block["model_error_variance"] = {n: list(nnls(design, e2[:, i])[0]) for i, n in enumerate(names)}
+        block["model_error_command"] = f"{command}  ({len(rows)} clean runs, {method}, fitness {res['fitness']})"
         costs = [r["fit_cost"] for r in rows if np.isfinite(r["fit_cost"])]
-        if costs:
-            data["fit_floor"] = float(max(costs))
+        if costs and method == DEFAULT_METHOD:
+            block["fit_floor"] = float(max(costs))
+    if method != DEFAULT_METHOD:
+        methods[method] = block
     lines = ["# Error terms added in quadrature to the Gauss-Newton standard error of every diagnosis",
-             "# (identify.model_error, identify.noise_error), 1 sd per fault coefficient.",
+             "# (identification.uncertainty: model_error, noise_error), 1 sd per fault coefficient, measured",
+             "# per identification method: the top level is the default method's (fast); methods: holds the",
+             "# others' (their whole-test cost is a saw-tooth in K_BKL, so where they stop is part of the error).",
              "# model_error_sd: the monitor's model-form error, the RMS identification error on clean",
              "#   reference runs (no noise: all of it is model mismatch); model_error_variance: how it",
              "#   grows with the damage on the same runs (used when the estimate is known).",
              "# noise_error_sd: what sensor noise adds beyond the Gauss-Newton term (it moves the",
              "#   stick-slip and backlash events): the RMS error on noisy runs less the other two parts,",
-             "#   at position noise noise_reference_m [m]; scaled by the noise measured in each run.",
+             "#   at position noise noise_reference_m [m]; scaled by the noise measured in each run;",
+             "#   noise_error_variance: how that excess grows with the damage (the same runs).",
              "# fit_floor: the largest stage cost (fitness.fdi_stage_residual) a diagnosis left on the same",
              "#   clean runs: the model's floor, against which the fast method's global guard judges a fit.",
              "# Each block was made by the command beside it (eha-health bench paper ... --write-model-error)."]
-    for block in ("model_error", "noise_error"):
-        if f"{block}_sd" in data:
-            lines.append(f"{block}_command: \"{data[f'{block}_command']}\"")
-            if block == "noise_error":
-                lines.append(f"noise_reference_m: {data['noise_reference_m']:.4g}")
-            lines.append(f"{block}_sd:")
-            lines += [f"  {n}: {float(data[f'{block}_sd'][n]):.6f}" for n in names]
-            if block == "model_error" and data.get("fit_floor"):
-                lines.append(f"fit_floor: {float(data['fit_floor']):.4g}")
-            if block == "model_error" and "model_error_variance" in data:
-                lines.append("# the same runs: var = c0 + c1 K_GM + c2 K_FSJ + c3 K_BKL (estimates), NNLS of err^2")
-                lines.append("model_error_variance:")
-                lines += [f"  {n}: [" + ", ".join(f"{float(v):.4g}" for v in data["model_error_variance"][n]) + "]"
-                          for n in names]
+    lines += _error_lines(data, "")
+    if methods:
+        lines.append("methods:")
+        for m in sorted(methods):
+            lines.append(f"  {m}:")
+            lines += _error_lines(methods[m], "    ")
     return "\n".join(lines) + "\n"
+
+
+def _error_lines(block: dict, ind: str) -> list[str]:
+    """YAML lines of one method's error terms (``ind``: its indentation)."""
+    names = FAULT_NAMES
+    lines = []
+
+    def variance(key: str, what: str) -> None:
+        if key in block:
+            lines.append(f"{ind}# the same runs: {what} = c0 + c1 K_GM + c2 K_FSJ + c3 K_BKL (estimates), NNLS")
+            lines.append(f"{ind}{key}:")
+            lines.extend(f"{ind}  {n}: [" + ", ".join(f"{float(v):.4g}" for v in block[key][n]) + "]" for n in names)
+
+    for part in ("model_error", "noise_error"):
+        if f"{part}_sd" not in block:
+            continue
+        lines.append(f"{ind}{part}_command: \"{block[f'{part}_command']}\"")
+        if part == "noise_error":
+            lines.append(f"{ind}noise_reference_m: {float(block['noise_reference_m']):.4g}")
+        lines.append(f"{ind}{part}_sd:")
+        lines.extend(f"{ind}  {n}: {float(block[f'{part}_sd'][n]):.6f}" for n in names)
+        if part == "model_error" and block.get("fit_floor"):
+            lines.append(f"{ind}fit_floor: {float(block['fit_floor']):.4g}")
+        variance(f"{part}_variance", "var" if part == "model_error" else "excess var at noise_reference_m")
+    return lines

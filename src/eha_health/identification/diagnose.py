@@ -167,13 +167,14 @@ def start_point(model: KnobModel, response: Response, sequence: FDISequence) -> 
         return Faults(0.5, 0.5, 0.5)
 
 
-def error_bars(problem: Problem, x: np.ndarray, position_noise_m: float):
+def error_bars(problem: Problem, x: np.ndarray, position_noise_m: float, method: str = DEFAULT_METHOD):
     """``(sd, corr, sd_stat, out)`` at the estimate: Gauss-Newton (lsq residual, autocorrelation-inflated)
-    plus the model-form and noise errors in quadrature; ``out`` is the model output at ``x``."""
+    plus the model-form and noise errors of the ``method`` that found ``x``, in quadrature; ``out`` is
+    the model output at ``x``."""
     r, J, out = jacobian(problem, x, COVARIANCE_STEP_SCALE)
     cov_stat = covariance(J, r, autocorr_inflation(r, len(problem.objective.channels)))
     sd_stat = np.sqrt(np.maximum(np.diag(cov_stat), 0.0))
-    extra = np.hypot(model_error(estimate=x), noise_error(position_noise_m))
+    extra = np.hypot(model_error(estimate=x, method=method), noise_error(position_noise_m, estimate=x, method=method))
     cov = cov_stat + np.diag(extra ** 2)
     return np.sqrt(np.maximum(np.diag(cov), 0.0)), correlation(cov), sd_stat, out
 
@@ -341,6 +342,7 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
     x_start, stages, options = np.array(start.as_tuple(), float), fdi_stages(objective, record, seq), ga_options or GAOptions()
     est = search(problem, method, x_start, stages, seed, options, history, progress, stage)
     guard, guard_warn = "", []
+    finished_by = method                # whose measured error terms the error bars take
     if method == "fast":
         q = fit_quality(stage, est.cost, record)
         guard = "passed" if np.isfinite(q) else "unjudged"
@@ -368,14 +370,15 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
             if progress:
                 progress(guard_warn[-1])
             est = search(problem, "hybrid", x_start, stages, seed, options, history, progress)
+            finished_by = "hybrid"
             # the global search's estimate is a start in the right basin: finish it on the stage residual
             polished = search(problem, "fast", est.x, stages, seed, options, history, progress, stage)
             if fit_quality(stage, polished.cost, record) <= GUARD_FACTOR:
                 polished.population, polished.population_cost = est.population, est.population_cost
-                est = polished
+                est, finished_by = polished, "fast"
     x = est.x
     lsq = problem if isinstance(objective, Residual) else Problem(model, make_fitness("lsq", record, seq))
-    sd, corr, sd_stat, out = error_bars(lsq, x, noise_level(response.position))
+    sd, corr, sd_stat, out = error_bars(lsq, x, noise_level(response.position), finished_by)
     cost = float(objective.cost(out))
     warn = guard_warn + twin_warnings(corr, x, est.population, est.population_cost, cost)
     if np.any(x >= model.upper - 1e-6):

@@ -5,7 +5,8 @@
   effective sample size of a coloured residual).
 * :func:`model_error` -- the monitor model's measured model-form error
   (``data/model_error.yaml``: the RMS identification error on clean reference runs, which no
-  fit residual can reveal), growing with the estimated damage.
+  fit residual can reveal), growing with the estimated damage; measured per identification method
+  (the whole-test methods stop anywhere in a saw-tooth of the cost in K_BKL, the fast one does not).
 * :func:`noise_error` -- what the sensor noise adds beyond the Gauss-Newton term through the
   loop's stick-slip and backlash events, scaled by the position noise measured in the data.
 * :func:`twin_warnings` -- "twin cases": correlations above 0.95, or a distinct fault
@@ -68,13 +69,23 @@ def correlation(cov: np.ndarray) -> np.ndarray:
     return corr
 
 
-@functools.lru_cache(maxsize=None)
-def _error_file(path: str | None) -> dict:
-    where = path or "data/model_error.yaml"
-    text = Path(path).read_text() if path else resources.files("eha_health").joinpath(
-        "data/model_error.yaml").read_text()
-    data = yaml.safe_load(text) or {}
+def _coefficients(block: dict, key: str, where: str) -> np.ndarray | None:
+    """A ``*_variance`` block: for each coefficient, four values >= 0 (constant, K_GM, K_FSJ, K_BKL)."""
+    var = block.get(key)
+    if var is None:
+        return None
+    try:
+        c = np.array([[float(v) for v in var[n]] for n in FAULT_NAMES])
+    except (KeyError, TypeError, ValueError):
+        c = None
+    if c is None or c.shape != (3, 4) or not (np.isfinite(c).all() and (c >= 0).all()):
+        raise ValueError(f"model error file {where}: {key} needs, for each of {', '.join(FAULT_NAMES)}, "
+                         f"four coefficients >= 0 (constant, K_GM, K_FSJ, K_BKL)")
+    return c
 
+
+def _error_block(data: dict, where: str) -> dict:
+    """The error terms of one identification method (the file's top level, or one ``methods:`` entry)."""
     def triple(key: str, required: bool) -> tuple[float, float, float]:
         sd = data.get(key)
         if sd is None and not required:
@@ -87,21 +98,11 @@ def _error_file(path: str | None) -> dict:
             raise ValueError(f"model error file {where}: {key} values must be finite and >= 0, got {vals}")
         return vals
 
-    out = {"model": triple("model_error_sd", True), "noise": triple("noise_error_sd", False)}
-    var = data.get("model_error_variance")
-    if var is not None:
-        try:
-            c = np.array([[float(v) for v in var[n]] for n in FAULT_NAMES])
-        except (KeyError, TypeError, ValueError):
-            c = None
-        if c is None or c.shape != (3, 4) or not (np.isfinite(c).all() and (c >= 0).all()):
-            raise ValueError(f"model error file {where}: model_error_variance needs, for each of "
-                             f"{', '.join(FAULT_NAMES)}, four coefficients >= 0 (constant, K_GM, K_FSJ, K_BKL)")
-        out["variance"] = c
-    else:
-        out["variance"] = None
+    out = {"model": triple("model_error_sd", True), "noise": triple("noise_error_sd", False),
+           "variance": _coefficients(data, "model_error_variance", where),
+           "noise_variance": _coefficients(data, "noise_error_variance", where)}
     ref = data.get("noise_reference_m")
-    if any(out["noise"]) and not (isinstance(ref, (int, float)) and ref > 0):
+    if (any(out["noise"]) or out["noise_variance"] is not None) and not (isinstance(ref, (int, float)) and ref > 0):
         raise ValueError(f"model error file {where}: noise_error_sd needs noise_reference_m > 0 [m]")
     out["noise_reference_m"] = float(ref) if ref else 0.0
     floor = data.get("fit_floor")
@@ -111,34 +112,62 @@ def _error_file(path: str | None) -> dict:
     return out
 
 
-def model_error(path: str | Path | None = None, estimate=None) -> np.ndarray:
+@functools.lru_cache(maxsize=None)
+def _error_file(path: str | None, method: str | None = None) -> dict:
+    """The error terms of ``method``: its ``methods:`` entry if the file has one, else the top level
+    (the default method's, ``fast``, whose fit_floor the guard reads)."""
+    where = path or "data/model_error.yaml"
+    text = Path(path).read_text() if path else resources.files("eha_health").joinpath(
+        "data/model_error.yaml").read_text()
+    data = yaml.safe_load(text) or {}
+    methods = data.get("methods") or {}
+    if not isinstance(methods, dict):
+        raise ValueError(f"model error file {where}: methods must map a method name to its error terms")
+    if method in methods:
+        if not isinstance(methods[method], dict):
+            raise ValueError(f"model error file {where}: methods.{method} must be a mapping")
+        return _error_block(methods[method], f"{where} (methods.{method})")
+    return _error_block(data, where)
+
+
+def _damage(estimate) -> np.ndarray:
+    return np.concatenate([[1.0], np.clip(np.asarray(estimate, float), 0.0, None)])
+
+
+def model_error(path: str | Path | None = None, estimate=None, method: str | None = None) -> np.ndarray:
     """Model-form error of the monitor model, 1 sd per coefficient (data/model_error.yaml).
 
-    Measured on clean reference runs (no noise, so all of it is model mismatch); the
-    file records the command that made it. Without ``estimate``: the RMS error over those
-    runs. With the estimated (K_GM, K_FSJ, K_BKL) and a ``model_error_variance`` block:
-    the error grows with the damage, var_k = c_k0 + c_k1 K_GM + c_k2 K_FSJ + c_k3 K_BKL
-    (non-negative least squares of the squared errors on the same runs).
+    Measured on clean reference runs (no noise, so all of it is model mismatch, plus where the
+    method's search stops short: the whole-test cost is a saw-tooth in K_BKL); the file records
+    the command that made it, per identification ``method`` (its ``methods:`` entry; the top level
+    is the default method's). Without ``estimate``: the RMS error over those runs. With the
+    estimated (K_GM, K_FSJ, K_BKL) and a ``model_error_variance`` block: the error grows with the
+    damage, var_k = c_k0 + c_k1 K_GM + c_k2 K_FSJ + c_k3 K_BKL (non-negative least squares of the
+    squared errors on the same runs).
     """
-    f = _error_file(str(path) if path else None)
+    f = _error_file(str(path) if path else None, method)
     if estimate is None or f["variance"] is None:
         return np.array(f["model"])
-    k = np.clip(np.asarray(estimate, float), 0.0, None)
-    return np.sqrt(f["variance"] @ np.concatenate([[1.0], k]))
+    return np.sqrt(f["variance"] @ _damage(estimate))
 
 
-def noise_error(position_noise_m: float, path: str | Path | None = None) -> np.ndarray:
+def noise_error(position_noise_m: float, path: str | Path | None = None, estimate=None,
+                method: str | None = None) -> np.ndarray:
     """Error the sensor noise adds beyond the Gauss-Newton term, 1 sd per coefficient.
 
     Noise inside the loop moves the stick-slip and backlash events, which a local
-    linearisation cannot see. Measured as the excess RMS error over noisy reference runs
-    (``noise_error_sd`` at position noise ``noise_reference_m``) and scaled linearly with
-    the position noise measured in the data [m].
+    linearisation cannot see. Measured as the excess error over noisy reference runs at
+    position noise ``noise_reference_m`` (per ``method``, as :func:`model_error`) and scaled
+    linearly with the position noise measured in the data [m]. With the estimate and a
+    ``noise_error_variance`` block, the excess grows with the damage as the model-form error does.
     """
-    f = _error_file(str(path) if path else None)
+    f = _error_file(str(path) if path else None, method)
     if f["noise_reference_m"] <= 0:
         return np.zeros(3)
-    return np.array(f["noise"]) * (max(float(position_noise_m), 0.0) / f["noise_reference_m"])
+    scale = max(float(position_noise_m), 0.0) / f["noise_reference_m"]
+    if estimate is None or f["noise_variance"] is None:
+        return np.array(f["noise"]) * scale
+    return np.sqrt(f["noise_variance"] @ _damage(estimate)) * scale
 
 
 def fit_floor(path: str | Path | None = None) -> float | None:
