@@ -505,11 +505,39 @@ def test_a_channel_in_another_unit_is_refused_before_the_loop(channel, factor, u
 
 
 def test_an_effect_fitted_onto_its_bound_is_said_in_the_verdict():
-    """One chamber's pressure recorded as P12 (0.5 P12 + 10.35 MPa, half the supply): the loop's
-    nearest candidates are an offset and a scale, and the scale ends on its -30 % bound with K_FSJ
-    far off; the verdict says so and that the coefficients are not to be trusted."""
+    """The pressure recorded at half its size (a transducer's calibration 50 % off, within the units
+    check's reach): the nearest candidate, pressure_scale, ends on its -30 % bound; the verdict says so
+    and that the coefficients are not to be trusted."""
     r = simulate(faults=Faults(0.3, 0.4, 0.3), params=load("reference").with_effect_names(["sensor_noise"]), seed=5)
-    r.pressure = 0.5 * r.pressure + 10.35e6
+    r.pressure = 0.5 * r.pressure
     rep = analyse_fdi_test(r, max_effects=2)
     assert "pressure_scale" in rep.selected
     assert "pressure_scale on its bound -0.3" in rep.verdict and "not to be trusted" in rep.verdict
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_one_chambers_pressure_is_refused_and_the_chamber_pair_imports(tmp_path, sign):
+    """One chamber's pressure recorded as P12 (P1 = (Ps + P12) / 2, or P2 = (Ps - P12) / 2) was
+    fitted as K_FSJ 1.5 (diagnose, on its bound) or with pressure_scale on its bound (the loop) for a
+    true 0.4: refused before any fit, naming it. Both chambers, imported with ``minus``, give P12 and
+    the faults back."""
+    from eha_health.identification.diagnose import diagnose
+    r = simulate(faults=Faults(0.3, 0.4, 0.3), params=load("reference").with_effect_names(["sensor_noise"]), seed=5)
+    p12, ps = r.pressure.copy(), load("reference").hydraulics.supply_pressure
+    r.pressure = 0.5 * (ps + sign * p12)
+    with pytest.raises(ValueError, match=r"one chamber's pressure \(P1 or P2\) recorded as the differential"):
+        diagnose(r)
+    with pytest.raises(ValueError, match=r"minus: COLUMN"):
+        analyse_fdi_test(r, max_effects=1)
+    rows = "\n".join(f"{ti:.6f},{c * 1e3:.9f},{x * 1e3:.9f},{v:.9e},{i:.9e},{(ps + q) / 2e5:.9f},{(ps - q) / 2e5:.9f}"
+                     for ti, c, x, v, i, q in zip(r.t, r.command, r.position, r.velocity, r.current, p12))
+    data = _write(tmp_path, "rig.txt", "t,cmd_mm,pos_mm,vel,cur,p1_bar,p2_bar\n" + rows + "\n")
+    m = _write(tmp_path, "map.yaml", yaml.safe_dump({
+        "skip_rows": 1, "header_row": 0, "time": {"column": "t", "unit": "s"},
+        "channels": {"command": {"column": "cmd_mm", "unit": "mm"}, "position": {"column": "pos_mm", "unit": "mm"},
+                     "velocity": {"column": "vel", "unit": "m/s"}, "current": {"column": "cur", "unit": "A"},
+                     "pressure": {"column": "p1_bar", "minus": "p2_bar", "unit": "bar"}}}))
+    back = import_text(data, m)
+    assert np.max(np.abs(back.pressure - p12)) < 1.0                        # Pa: the text's rounding
+    d = diagnose(back)
+    assert np.max(np.abs(np.array(d.faults.as_tuple()) - (0.3, 0.4, 0.3))) < 0.01

@@ -7,12 +7,15 @@ amplitude by far less than the common unit factors (mm or mA 1e3, kPa 1e-3, bar 
 psi 1.45e-4, inch 39.4): beyond :data:`LIMIT` either way the record is refused, naming the
 channel, the gain and the unit it looks like, before any fit spends its time on it (a pressure
 in bar was otherwise "explained" as a -30 % pressure_scale with K_FSJ 0 for a true 0.4).
+A pressure that is one chamber's, not the differential (:func:`~eha_health.signals.datachecks.single_chamber`),
+is refused the same way (it was fitted as K_FSJ 1.5, on its bound, for a true 0.4).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..signals.channels import UNITS
+from ..signals.datachecks import single_chamber
 from .problem import KnobModel
 from .residual import CHANNEL_COLUMNS
 
@@ -27,11 +30,16 @@ OTHER_UNITS = {
 }
 
 
-def unit_gains(model: KnobModel, x=None) -> dict[str, float]:
-    """Least-squares gain of each recorded channel against the model at knob vector ``x``
-    (default: its ``off`` vector, the healthy model; nan where the model's channel does not move)."""
+def _output(model: KnobModel, x=None) -> np.ndarray:
     x = model.off() if x is None else np.asarray(x, float)
-    out = model.run(x[None, :], count=False)[0]
+    return model.run(x[None, :], count=False)[0]
+
+
+def unit_gains(model: KnobModel, x=None, out: np.ndarray | None = None) -> dict[str, float]:
+    """Least-squares gain of each recorded channel against the model at knob vector ``x``
+    (default: its ``off`` vector, the healthy model; nan where the model's channel does not move);
+    ``out``: the model's output there, if already run."""
+    out = _output(model, x) if out is None else out
     gains = {}
     for c, y in model.record.channels.items():
         m = out[:, CHANNEL_COLUMNS[c]] - np.mean(out[:, CHANNEL_COLUMNS[c]])
@@ -43,11 +51,19 @@ def unit_gains(model: KnobModel, x=None) -> dict[str, float]:
 
 def check_units(model: KnobModel, x=None) -> None:
     """Raise ``ValueError`` naming the first channel whose recording is more than :data:`LIMIT`
-    times larger or smaller than the model's at ``x`` (default: healthy)."""
-    for c, g in unit_gains(model, x).items():
+    times larger or smaller than the model's at ``x`` (default: healthy), or a pressure that is one
+    chamber's instead of the differential."""
+    out = _output(model, x)
+    for c, g in unit_gains(model, x, out).items():
         if np.isfinite(g) and g != 0 and max(abs(g), 1 / abs(g)) > LIMIT:
             near = min(OTHER_UNITS.get(c, ()), key=lambda u: abs(np.log10(abs(g) / u[0])), default=None)
             guess = f" -- in {near[1]}?" if near and abs(np.log10(abs(g) / near[0])) < 0.5 else ""
             raise ValueError(f"channel {c} is {abs(g):.3g} x the healthy model's (least-squares gain {g:.3g}): "
                              f"not in {UNITS[c]}{guess} (every channel must be SI: convert it, e.g. by the "
                              f"scale of its column in an `eha-health import` channel map)")
+    if "pressure" in model.record.channels:
+        chamber = single_chamber(model.record.channels["pressure"], out[:, CHANNEL_COLUMNS["pressure"]],
+                                 model.base.hydraulics.supply_pressure)
+        if chamber:
+            raise ValueError(f"channel pressure {chamber} Record P1 - P2 (an `eha-health import` channel map "
+                             f"takes `minus: COLUMN` for the second chamber)")

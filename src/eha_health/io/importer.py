@@ -10,9 +10,10 @@ The map (YAML) says where each channel is and how to make it SI::
       command:  {column: 4, scale: 10, unit: mm}   # current and load (external force
       position: {column: 2, scale: 10, unit: mm}   # on the actuator, opposing +x) optional
       load:     {column: 3, scale: 9806.65, unit: N, offset: 0.0}
+      pressure: {column: 5, minus: 6, unit: bar}   # two chamber transducers: P12 = P1 - P2
 
-``column`` is a 0-based index or a header name (then ``header_row`` gives the
-0-based line of the names). Value in SI = (raw * scale - offset) * unit factor.
+``column`` (and ``minus``) is a 0-based index or a header name (then ``header_row`` gives the
+0-based line of the names). Value in SI = ((raw - raw[minus]) * scale - offset) * unit factor.
 """
 from __future__ import annotations
 
@@ -97,6 +98,20 @@ def _column(spec, name: str, header: list[str] | None) -> int:
     return header.index(str(col))
 
 
+def _values(rows: list[list[str]], c: int, name: str, data_path: Path, skip: int) -> np.ndarray:
+    vals = np.empty(len(rows))
+    for i, r in enumerate(rows):
+        if c >= len(r):
+            raise ImportError_(f"{data_path}: data row {skip + i + 1} has {len(r)} fields; "
+                               f"channel {name} is column {c}")
+        try:
+            vals[i] = float(r[c])
+        except ValueError:
+            raise ImportError_(f"{data_path}: data row {skip + i + 1}, column {c} ({name}): "
+                               f"{r[c].strip()!r} is not a number") from None
+    return vals
+
+
 def import_text(data_path: str | Path, map_path: str | Path) -> Response:
     """Read measured data into a :class:`Response` (unmeasured channels are NaN)."""
     m = load_map(map_path)
@@ -118,6 +133,8 @@ def import_text(data_path: str | Path, map_path: str | Path) -> Response:
     if "time" in m:
         specs["t"] = m["time"]
     cols = {name: _column(spec, name, header) for name, spec in specs.items()}
+    minus = {name: _column({"column": spec["minus"]}, f"{name} (minus)", header)
+             for name, spec in specs.items() if isinstance(spec, dict) and "minus" in spec}
     rows = [ln.split(delim) for ln in lines[skip:] if ln.strip()]
     if len(rows) < 100:
         raise ImportError_(f"{data_path}: {len(rows)} data rows after skipping {skip} (need >= 100)")
@@ -130,16 +147,9 @@ def import_text(data_path: str | Path, map_path: str | Path) -> Response:
         for key, v in (("scale", scale), ("offset", offset)):
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
                 raise ImportError_(f"map: channel {name}: {key} must be a finite number, got {v!r}")
-        vals = np.empty(len(rows))
-        for i, r in enumerate(rows):
-            if c >= len(r):
-                raise ImportError_(f"{data_path}: data row {skip + i + 1} has {len(r)} fields; "
-                                   f"channel {name} is column {c}")
-            try:
-                vals[i] = float(r[c])
-            except ValueError:
-                raise ImportError_(f"{data_path}: data row {skip + i + 1}, column {c} ({name}): "
-                                   f"{r[c].strip()!r} is not a number") from None
+        vals = _values(rows, c, name, data_path, skip)
+        if name in minus:
+            vals = vals - _values(rows, minus[name], f"{name} (minus)", data_path, skip)
         bad = ~np.isfinite(vals)
         if bad.any():
             raise ImportError_(f"{data_path}: channel {name} has {int(bad.sum())} NaN/inf value(s), "

@@ -18,7 +18,11 @@ spikes, polarity.
   simulated one shows sub-percent one-sample features of the physics: measured, 7.6e-5 A of
   current with oil compressibility);
 * polarity: the recording anticorrelated with the fitted model (correlation < -0.5): a sign
-  inverted in the acquisition, which no scale candidate (+/-30 %) spans.
+  inverted in the acquisition, which no scale candidate (+/-30 %) spans;
+* one chamber's pressure: the jack's differential pressure P12 = P1 - P2 changes sign as the
+  motion reverses, while a chamber's P1 = (Ps + P12) / 2 (or P2 = (Ps - P12) / 2, symmetric valve)
+  stays positive around half the supply Ps: a recorded "P12" that stays around Ps / 2 while the
+  model's changes sign is one chamber's pressure, which no offset or scale candidate spans.
 """
 from __future__ import annotations
 
@@ -75,6 +79,27 @@ def spikes(y: np.ndarray, model: np.ndarray, noise_sd: float, step: float = 0.0,
     lone = (np.abs(d2[i - 1] + 0.5 * d2[i]) < 0.2 * np.abs(d2[i])) & \
            (np.abs(d2[i + 1] + 0.5 * d2[i]) < 0.2 * np.abs(d2[i]))
     return i[lone] + 1
+
+
+def single_chamber(y: np.ndarray, model: np.ndarray, supply_pa: float) -> str | None:
+    """The finding when the recorded differential pressure ``y`` [Pa] is one chamber's, else None.
+
+    Named when the model's P12 changes sign (2nd / 98th percentiles beyond -+5 % of the supply
+    ``supply_pa``) while the recording stays positive (2nd percentile above 10 % of the supply)
+    with its median within 30-70 % of it: P1 or P2 = (Ps +- P12) / 2.
+    """
+    y, model = np.asarray(y, float), np.asarray(model, float)
+    if not (len(y) and supply_pa > 0 and np.isfinite(y).all() and np.isfinite(model).all()):
+        return None
+    m_lo, m_hi = np.percentile(model, [2, 98])
+    y_lo, y_med, y_hi = np.percentile(y, [2, 50, 98])
+    if m_lo < -0.05 * supply_pa and m_hi > 0.05 * supply_pa and y_lo > 0.1 * supply_pa \
+            and 0.3 * supply_pa <= y_med <= 0.7 * supply_pa:
+        return (f"stays within {y_lo / 1e6:.2f}-{y_hi / 1e6:.2f} MPa around half the supply "
+                f"({supply_pa / 2e6:.2f} MPa) where the model's differential pressure changes sign "
+                f"({m_lo / 1e6:.2f} to {m_hi / 1e6:.2f} MPa): one chamber's pressure (P1 or P2) recorded as "
+                f"the differential P12 = P1 - P2?")
+    return None
 
 
 def command_band(command: np.ndarray, rate: float, power: float = 0.99) -> float:
