@@ -135,6 +135,13 @@ def test_no_second_effect_invented_after_the_true_one():
     rep = analyse_fdi_test(_noisy_run(p, faults, seed=77), max_effects=2, truth=dict(zip(FAULT_NAMES, faults.as_tuple())))
     assert rep.selected == ["valve_null_bias"]
     assert rep.after.values["null_bias"] == pytest.approx(1e-4, rel=0.1)
+    # K_BKL's error bar carries the measured error of a whole-test fit (a saw-tooth in K_BKL: ~0.002
+    # at K_BKL 0.7, 3-5x the Gauss-Newton term) and covers the truth (measured: error 0.0016, Gauss-
+    # Newton alone said 0.0001)
+    from eha_health.identification.uncertainty import model_error
+    x = [rep.after.values[n] for n in FAULT_NAMES]
+    assert rep.after.std["k_bkl"] >= model_error(estimate=x, method="deterministic")[2] > 0.0015
+    assert rep.after.errors["k_bkl"] <= 2 * rep.after.std["k_bkl"], (rep.after.errors, rep.after.std)
 
 
 def test_a_nested_candidate_whose_extra_knob_is_zero_gives_way_to_the_simpler_one():

@@ -155,6 +155,9 @@ def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, faul
             "excess_held_before": {c: rep.before.excess_held_out[c] for c in chans},
             "excess_held_after": {c: rep.after.excess_held_out[c] for c in chans},
             "err_before": max(rep.before.errors.values()), "err_after": max(rep.after.errors.values()),
+            # each coefficient's error after over its stated standard error (are the error bars honest?)
+            "z_after": {k: e / rep.after.std[k] if rep.after.std.get(k, 0) > 0 else None
+                        for k, e in rep.after.errors.items()},
             "runs": rep.runs, "refits": sum(c.refit for c in rep.candidates),
             # the loop's own time (the diagnosis it starts from excluded), and with the diagnosis
             "wall_time_s": rep.wall_time_s, "with_diagnosis_s": time.perf_counter() - t0})
@@ -192,6 +195,10 @@ def summarise(cases: list[dict], seed: int) -> dict:
         "third_share": share(third),
         "max_err_after_found": float(max(c["err_after"] for c in found)) if found else None,
         "err_within_0_03_share": share([c["err_after"] <= 0.03 for c in found]),
+        # RMS over the found cases of error / stated standard error, per coefficient (1: honest bars)
+        "z_rms_after_found": {k: float(np.sqrt(np.mean([c["z_after"][k] ** 2 for c in found])))
+                              for k in (found[0]["z_after"] if found else {})
+                              if all(c["z_after"].get(k) is not None for c in found)},
     }
 
 

@@ -48,8 +48,9 @@ from ..identification.problem import KnobModel, Problem
 from ..identification.record import Record
 from ..identification.residual import CHANNEL_COLUMNS, Residual
 from ..identification.result import FitResult
-from ..identification.uncertainty import autocorr_inflation
+from ..identification.uncertainty import autocorr_inflation, model_error, noise_error
 from ..identification.units import check_units
+from ..physics.faults import FAULT_NAMES
 from ..physics.params import ModelParams, load
 from ..physics.sequence import FDISequence
 from ..signals.datachecks import check_channel
@@ -127,9 +128,22 @@ class _Split:
         def excess(rms):
             return {c: float(np.sqrt(max(v ** 2 - noise.get(c, 0.0) ** 2 - floor.get(c, 0.0) ** 2, 0.0)))
                     for c, v in rms.items()}
-        return State(effects=list(effects), values=values, std=f.std(infl), rms=self.r_all.rms(f.output),
+        return State(effects=list(effects), values=values, std=_with_measured_error(f.std(infl), values, noise),
+                     rms=self.r_all.rms(f.output),
                      rms_held_out=rms_held, fitness=self.r_all.cost(f.output), errors=errors, rms_fit=rms_fit,
                      excess_fit=excess(rms_fit), excess_held_out=excess(rms_held))
+
+
+def _with_measured_error(std: dict[str, float], values: dict[str, float], noise: dict[str, float]) -> dict:
+    """The fault coefficients' Gauss-Newton errors plus, in quadrature, the measured model-form and
+    noise errors of a whole-test fit (the loop's fits finish on the whole-test cost, a saw-tooth in
+    K_BKL, as the deterministic method does: its block of data/model_error.yaml)."""
+    if not all(n in values for n in FAULT_NAMES):
+        return std                       # a rig's base knobs: no measured terms
+    x = [values[n] for n in FAULT_NAMES]
+    extra = np.hypot(model_error(estimate=x, method="deterministic"),
+                     noise_error(noise.get("position", 0.0), estimate=x, method="deterministic"))
+    return {k: float(np.hypot(v, extra[FAULT_NAMES.index(k)])) if k in FAULT_NAMES else v for k, v in std.items()}
 
 
 def _check(max_effects: int, final_fit: str, settings: Settings) -> None:
