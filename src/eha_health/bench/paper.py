@@ -295,7 +295,6 @@ def model_error_yaml(res: dict, method: str, command: str, previous: dict | None
     mean(sd_stat^2)), at the mean measured position noise ``noise_reference_m``, and
     ``noise_error_variance``: the same excess per run (scaled to that noise) by NNLS on the estimates.
     """
-    from ..identification.diagnose import DEFAULT_METHOD
     names = FAULT_NAMES
     data = dict(previous or {})
     methods = dict(data.pop("methods", None) or {})
