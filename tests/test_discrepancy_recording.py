@@ -209,3 +209,18 @@ def test_data_checks_name_spikes_and_an_inverted_sign_and_not_motion():
     assert not any("spike" in s for s in check_channel("pressure", noisy, y - noisy, 2e4, cmd, 1e3))
     assert any("sign inverted" in s for s in check_channel("pressure", -noisy, y + noisy, 2e4, cmd, 1e3))
     assert not any("sign inverted" in s for s in check_channel("pressure", noisy, y - noisy, 2e4, cmd, 1e3))
+
+def test_bench_reports_how_honest_the_error_bars_are_after_the_loop():
+    """`bench discrepancy` on one effect and one fault set, for real: the true effect found, and each
+    coefficient's error after over its stated standard error, per case and as an RMS in the summary
+    (K_BKL: the whole-test fit's measured error is in its bar)."""
+    from eha_health.bench.discrepancy import format_synthetic, synthetic
+    from eha_health.physics.faults import FAULT_NAMES, Faults
+    res = synthetic(seed=3, n_noise=0, effects=("position_offset",), fault_sets=(Faults(0.3, 0.4, 0.3),),
+                    two_effects=False)
+    (case,) = res["cases"]
+    assert case["selected"] == ["position_offset"]
+    assert set(case["z_after"]) == set(FAULT_NAMES) and all(z >= 0 for z in case["z_after"].values())
+    assert res["z_rms_after_found"] == pytest.approx({k: abs(case["z_after"][k]) for k in FAULT_NAMES}, rel=1e-12)
+    assert case["z_after"]["k_bkl"] <= 3
+    assert "error / stated standard error after" in format_synthetic(res)

@@ -226,4 +226,7 @@ def format_synthetic(res: dict) -> str:
         lines.append(f"where the true effect was selected: affected channel's held-out excess after <= 1/3 of "
                      f"before in {pct(res['third_share'])}; coefficients within 0.03 in "
                      f"{pct(res['err_within_0_03_share'])}, max error after {res['max_err_after_found']:.4f}")
+    if res.get("z_rms_after_found"):
+        lines.append("their error / stated standard error after, RMS (1: honest error bars): "
+                     + ", ".join(f"{k} {v:.2f}" for k, v in res["z_rms_after_found"].items()))
     return "\n".join(lines)
