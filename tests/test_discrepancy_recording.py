@@ -210,6 +210,7 @@ def test_data_checks_name_spikes_and_an_inverted_sign_and_not_motion():
     assert any("sign inverted" in s for s in check_channel("pressure", -noisy, y + noisy, 2e4, cmd, 1e3))
     assert not any("sign inverted" in s for s in check_channel("pressure", noisy, y - noisy, 2e4, cmd, 1e3))
 
+
 def test_bench_reports_how_honest_the_error_bars_are_after_the_loop():
     """`bench discrepancy` on one effect and one fault set, for real: the true effect found, and each
     coefficient's error after over its stated standard error, per case and as an RMS in the summary

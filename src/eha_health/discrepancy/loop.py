@@ -48,7 +48,7 @@ from ..identification.problem import KnobModel, Problem
 from ..identification.record import Record
 from ..identification.residual import CHANNEL_COLUMNS, Residual
 from ..identification.result import FitResult
-from ..identification.uncertainty import autocorr_inflation, model_error, noise_error
+from ..identification.uncertainty import autocorr_inflation, measured_error
 from ..identification.units import check_units
 from ..physics.faults import FAULT_NAMES
 from ..physics.params import ModelParams, load
@@ -140,9 +140,7 @@ def _with_measured_error(std: dict[str, float], values: dict[str, float], noise:
     K_BKL, as the deterministic method does: its block of data/model_error.yaml)."""
     if not all(n in values for n in FAULT_NAMES):
         return std                       # a rig's base knobs: no measured terms
-    x = [values[n] for n in FAULT_NAMES]
-    extra = np.hypot(model_error(estimate=x, method="deterministic"),
-                     noise_error(noise.get("position", 0.0), estimate=x, method="deterministic"))
+    extra = measured_error([values[n] for n in FAULT_NAMES], noise.get("position", 0.0), "deterministic")
     return {k: float(np.hypot(v, extra[FAULT_NAMES.index(k)])) if k in FAULT_NAMES else v for k, v in std.items()}
 
 

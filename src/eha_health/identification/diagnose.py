@@ -63,8 +63,8 @@ from .residual import Residual
 from .result import FitResult
 from .sequential import sequential
 from .start import StartTable
-from .uncertainty import (COVARIANCE_STEP_SCALE, autocorr_inflation, correlation, covariance, fit_floor, model_error,
-                          noise_error, twin_warnings)
+from .uncertainty import (COVARIANCE_STEP_SCALE, autocorr_inflation, correlation, covariance, fit_floor,
+                          measured_error, twin_warnings)
 
 #: Identification methods.
 METHODS = ("fast", "deterministic", "ga", "hybrid")
@@ -174,7 +174,7 @@ def error_bars(problem: Problem, x: np.ndarray, position_noise_m: float, method:
     r, J, out = jacobian(problem, x, COVARIANCE_STEP_SCALE)
     cov_stat = covariance(J, r, autocorr_inflation(r, len(problem.objective.channels)))
     sd_stat = np.sqrt(np.maximum(np.diag(cov_stat), 0.0))
-    extra = np.hypot(model_error(estimate=x, method=method), noise_error(position_noise_m, estimate=x, method=method))
+    extra = measured_error(x, position_noise_m, method)
     cov = cov_stat + np.diag(extra ** 2)
     return np.sqrt(np.maximum(np.diag(cov), 0.0)), correlation(cov), sd_stat, out
 

@@ -170,6 +170,14 @@ def noise_error(position_noise_m: float, path: str | Path | None = None, estimat
     return np.sqrt(f["noise_variance"] @ _damage(estimate)) * scale
 
 
+def measured_error(estimate, position_noise_m: float, method: str | None = None) -> np.ndarray:
+    """What a fit of ``method`` errs beyond its Gauss-Newton term at ``estimate``, 1 sd per
+    coefficient: :func:`model_error` and :func:`noise_error` in quadrature (added to the Gauss-Newton
+    variance by every error bar of the fault coefficients)."""
+    return np.hypot(model_error(estimate=estimate, method=method),
+                    noise_error(position_noise_m, estimate=estimate, method=method))
+
+
 def fit_floor(path: str | Path | None = None) -> float | None:
     """The model's floor of the stage cost (:func:`~.fitness.fdi_stage_residual`): the largest left
     by a diagnosis of the clean reference runs in data/model_error.yaml (None if not measured)."""
