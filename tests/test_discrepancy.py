@@ -1,4 +1,5 @@
 """Discrepancy loop: residual analysis, attribution, augmentation, import, rig data (issue 5)."""
+import copy
 import json
 import subprocess
 import sys
@@ -547,4 +548,30 @@ def test_one_chambers_pressure_is_refused_and_the_chamber_pair_imports(tmp_path,
     back = import_text(data, m)
     assert np.max(np.abs(back.pressure - p12)) < 1.0                        # Pa: the text's rounding
     d = diagnose(back)
+    assert np.max(np.abs(np.array(d.faults.as_tuple()) - (0.3, 0.4, 0.3))) < 0.01
+
+
+def test_a_channel_recorded_with_its_sign_inverted_is_refused_and_imports_flipped(tmp_path):
+    """A channel wired the other way round (a pressure recorded as P2 - P1) was diagnosed K_FSJ 0.0
+    for a true 0.4, and the loop called it an unexplained residual: every channel so inverted is
+    refused before any fit, naming it; imported with scale -1, the faults come back."""
+    from eha_health.identification.diagnose import diagnose
+    r = simulate(faults=Faults(0.3, 0.4, 0.3), params=load("reference").with_effect_names(["sensor_noise"]), seed=5)
+    for c in ("position", "velocity", "pressure", "current"):
+        flipped = copy.copy(r)
+        setattr(flipped, c, -getattr(r, c))
+        with pytest.raises(ValueError, match=rf"channel {c} is anticorrelated with the healthy model "
+                                             r"\(correlation -[01]\.\d+\): its sign is inverted"):
+            diagnose(flipped)
+        with pytest.raises(ValueError, match=r"scale: -1"):
+            analyse_fdi_test(flipped, max_effects=1)
+    rows = "\n".join(f"{ti:.6f},{c * 1e3:.9f},{x * 1e3:.9f},{v:.9e},{i:.9e},{-q / 1e5:.9f}"
+                     for ti, c, x, v, i, q in zip(r.t, r.command, r.position, r.velocity, r.current, r.pressure))
+    data = _write(tmp_path, "rig.txt", "t,cmd_mm,pos_mm,vel,cur,p21_bar\n" + rows + "\n")
+    m = _write(tmp_path, "map.yaml", yaml.safe_dump({
+        "skip_rows": 1, "header_row": 0, "time": {"column": "t", "unit": "s"},
+        "channels": {"command": {"column": "cmd_mm", "unit": "mm"}, "position": {"column": "pos_mm", "unit": "mm"},
+                     "velocity": {"column": "vel", "unit": "m/s"}, "current": {"column": "cur", "unit": "A"},
+                     "pressure": {"column": "p21_bar", "scale": -1, "unit": "bar"}}}))
+    d = diagnose(import_text(data, m))
     assert np.max(np.abs(np.array(d.faults.as_tuple()) - (0.3, 0.4, 0.3))) < 0.01

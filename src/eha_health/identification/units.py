@@ -8,14 +8,16 @@ psi 1.45e-4, inch 39.4): beyond :data:`LIMIT` either way the record is refused, 
 channel, the gain and the unit it looks like, before any fit spends its time on it (a pressure
 in bar was otherwise "explained" as a -30 % pressure_scale with K_FSJ 0 for a true 0.4).
 A pressure that is one chamber's, not the differential (:func:`~eha_health.signals.datachecks.single_chamber`),
-is refused the same way (it was fitted as K_FSJ 1.5, on its bound, for a true 0.4).
+is refused the same way (it was fitted as K_FSJ 1.5, on its bound, for a true 0.4), and so is a
+channel whose sign is inverted (:func:`~eha_health.signals.datachecks.inverted_sign`: a pressure
+recorded as P2 - P1 was diagnosed K_FSJ 0.0 for a true 0.4, and the loop called it unexplained).
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..signals.channels import UNITS
-from ..signals.datachecks import single_chamber
+from ..signals.datachecks import inverted_sign, single_chamber
 from .problem import KnobModel
 from .residual import CHANNEL_COLUMNS
 
@@ -51,8 +53,8 @@ def unit_gains(model: KnobModel, x=None, out: np.ndarray | None = None) -> dict[
 
 def check_units(model: KnobModel, x=None) -> None:
     """Raise ``ValueError`` naming the first channel whose recording is more than :data:`LIMIT`
-    times larger or smaller than the model's at ``x`` (default: healthy), or a pressure that is one
-    chamber's instead of the differential."""
+    times larger or smaller than the model's at ``x`` (default: healthy), whose sign is inverted
+    against it, or a pressure that is one chamber's instead of the differential."""
     out = _output(model, x)
     for c, g in unit_gains(model, x, out).items():
         if np.isfinite(g) and g != 0 and max(abs(g), 1 / abs(g)) > LIMIT:
@@ -67,3 +69,11 @@ def check_units(model: KnobModel, x=None) -> None:
         if chamber:
             raise ValueError(f"channel pressure {chamber} Record P1 - P2 (an `eha-health import` channel map "
                              f"takes `minus: COLUMN` for the second chamber)")
+    # after the chamber check: P2 = (Ps - P12) / 2 is anticorrelated too, and that is the better name
+    for c, y in model.record.channels.items():
+        r = inverted_sign(y, out[:, CHANNEL_COLUMNS[c]])
+        if r is not None:
+            raise ValueError(f"channel {c} is anticorrelated with the healthy model (correlation {r:.2f}): its "
+                             f"sign is inverted in the acquisition (a transducer wired the other way round"
+                             f"{', or P2 - P1 recorded for P1 - P2' if c == 'pressure' else ''})? Flip it "
+                             f"(scale: -1 for its column in an `eha-health import` channel map)")

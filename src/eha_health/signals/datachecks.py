@@ -17,8 +17,10 @@ spikes, polarity.
   d2[n -+ 1] = -d2[n] / 2 (a quantised channel toggles a level for one sample, and a noise-free
   simulated one shows sub-percent one-sample features of the physics: measured, 7.6e-5 A of
   current with oil compressibility);
-* polarity: the recording anticorrelated with the fitted model (correlation < -0.5): a sign
-  inverted in the acquisition, which no scale candidate (+/-30 %) spans;
+* polarity: the recording anticorrelated with the model (correlation < -0.5; the healthy monitor
+  against the reference at faults and effects up to their limits: >= 0.70 on every channel,
+  measured on 40 runs): a sign inverted in the acquisition, which no scale candidate (+/-30 %)
+  spans;
 * one chamber's pressure: the jack's differential pressure P12 = P1 - P2 changes sign as the
   motion reverses, while a chamber's P1 = (Ps + P12) / 2 (or P2 = (Ps - P12) / 2, symmetric valve)
   stays positive around half the supply Ps: a recorded "P12" that stays around Ps / 2 while the
@@ -103,6 +105,21 @@ def single_chamber(y: np.ndarray, model: np.ndarray, supply_pa: float) -> str | 
     return None
 
 
+#: Correlation with the model below which a recording's sign is taken to be inverted.
+INVERTED_BELOW = -0.5
+
+
+def inverted_sign(y: np.ndarray, model: np.ndarray) -> float | None:
+    """The correlation of the recording ``y`` with the ``model``'s channel when it is below
+    :data:`INVERTED_BELOW` (a sign inverted in the acquisition), else None (also for a constant
+    or non-finite channel)."""
+    y, model = np.asarray(y, float), np.asarray(model, float)
+    if not (len(y) > 2 and np.isfinite(y).all() and np.isfinite(model).all()) or np.ptp(y) == 0 or np.ptp(model) == 0:
+        return None
+    r = float(np.corrcoef(y, model)[0, 1])
+    return r if r < INVERTED_BELOW else None
+
+
 def command_band(command: np.ndarray, rate: float, power: float = 0.99) -> float:
     """Frequency [Hz] below which ``power`` of the (detrended) command's power lies."""
     x = np.asarray(command, float) - np.mean(command)
@@ -136,9 +153,8 @@ def check_channel(name: str, y: np.ndarray, residual: np.ndarray, noise_sd: floa
     if len(k):
         out.append(f"{name}: {len(k)} isolated one-sample spike(s), largest {np.max(np.abs(residual[k])):.3g} "
                    f"from the model, first at sample {k[0]} (acquisition glitches: not motion)")
-    with np.errstate(invalid="ignore", divide="ignore"):     # a constant channel: nan, no finding
-        r = float(np.corrcoef(y, model)[0, 1])
-    if r < -0.5:
+    r = inverted_sign(y, model)
+    if r is not None:
         out.append(f"{name}: the recording is anticorrelated with the model (correlation {r:.2f}): "
                    f"a sign inverted in the acquisition?")
     return out
