@@ -575,3 +575,19 @@ def test_a_channel_recorded_with_its_sign_inverted_is_refused_and_imports_flippe
                      "pressure": {"column": "p21_bar", "scale": -1, "unit": "bar"}}}))
     d = diagnose(import_text(data, m))
     assert np.max(np.abs(np.array(d.faults.as_tuple()) - (0.3, 0.4, 0.3))) < 0.01
+
+
+def test_an_effect_that_moves_the_diagnosis_to_another_basin_is_retried_from_screening():
+    """Oil at 0.8 GPa with faults (0.3, 0.4, 0.3): the diagnosis without it lands at K_BKL 0.01 and
+    K_FSJ 0.24, where compressibility's screen sees nothing (seventh by dIC, not refitted) and the
+    verdict was "unexplained". The in-loop candidates pruned at screening are retried from the base
+    re-identified with them: found, faults within 0.03; no selected effect is held at its off value."""
+    r = simulate(faults=Faults(0.3, 0.4, 0.3), seed=777, params=load("reference").with_effect_names(["sensor_noise"])
+                 .with_effects(compressibility={"enabled": True, "bulk_modulus": 8e8}))
+    rep = analyse_fdi_test(r, max_effects=2, truth=Faults(0.3, 0.4, 0.3).as_dict())
+    assert rep.selected[0] == "compressibility"
+    assert max(rep.after.errors.values()) <= 0.03
+    assert rep.after.values["oil_compliance"] == pytest.approx(1.25, rel=0.1)       # 1 / 0.8 GPa
+    for name in rep.selected:
+        assert any(abs(rep.after.values[k.name] - k.off) > 1e-3 * (k.hi - k.lo) for k in BY_NAME[name].knobs)
+    assert "on its bound" not in rep.verdict

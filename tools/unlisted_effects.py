@@ -7,9 +7,11 @@ made by another numerical method than the candidate's. This script asks what the
 alterations with no candidate of their own, or of other sizes and shapes: a second-order
 transducer, a channel held at a quarter of the rate, a velocity differentiated from the position,
 a nonlinear pressure transducer, mains hum with a current offset, two recording effects on two
-channels, one chamber's pressure recorded as P12, a different sign or size of the bench's ones,
-and nominal-parameter changes in the plant
-(valve flow gain, jack area, controller gain, hinge friction). One noisy reference run at faults
+channels, one chamber's pressure recorded as P12, a pressure with its sign inverted, one-sample
+glitches, a logger that froze, a hum on the position, a clipped pressure transducer, a different
+sign or size of the bench's ones, and nominal-parameter changes in the plant (valve flow gain,
+jack area, controller gain, hinge friction; oil softer than the bench's, alone and with a
+pressure offset). One noisy reference run at faults
 (0.3, 0.4, 0.3), seed 777, up to two effects; per case the verdict, the selection, the first
 three candidates, the data checks, the largest fault-coefficient error before -> after and the
 loop's time (or the error that refused the record before any fit). The figures of docs/discrepancy.md ("Alterations the bench does not list") come
@@ -58,6 +60,36 @@ def one_chamber_pressure(r):
     return r
 
 
+def inverted_pressure(r):
+    r.pressure = -r.pressure                         # P2 - P1 recorded for P1 - P2
+    return r
+
+
+def position_glitches(r):
+    r.position = r.position.copy()
+    r.position[np.random.default_rng(5).choice(len(r.t), 5, replace=False)] += 1e-3
+    return r
+
+
+def position_frozen(r, every=500, hold=25):
+    """The logger repeats its last position value for ``hold`` samples every ``every``."""
+    y = r.position.copy()
+    for s in range(100, len(y) - hold, every):
+        y[s:s + hold] = y[s]
+    r.position = y
+    return r
+
+
+def position_hum(r):
+    r.position = r.position + 10e-6 * np.sin(2 * np.pi * 60.0 * r.t)
+    return r
+
+
+def pressure_clipped(r):
+    r.pressure = np.clip(r.pressure, -1e6, 1e6)     # a transducer (or its amplifier) at +-1 MPa
+    return r
+
+
 def hum_and_current_offset(r):
     r.pressure = r.pressure + 2e5 * np.sin(2 * np.pi * 50.0 * r.t)
     r.current = r.current + 2e-4
@@ -77,17 +109,26 @@ ALTERED = {
     "current lag 2 ms + scale +5 %": lambda r: scaled(lagged(r, "current", 2e-3), "current", 0.05),
     "pressure -0.3 MPa + position scale -2 %": lambda r: scaled(offset(r, "pressure", -3e5), "position", -0.02),
     "one chamber's pressure recorded as P12": one_chamber_pressure,
+    "pressure recorded as P2 - P1": inverted_pressure,
+    "position, 5 one-sample glitches of 1 mm": position_glitches,
+    "position frozen 25 ms every 0.5 s": position_frozen,
+    "position 60 Hz hum 10 um": position_hum,
+    "pressure clipped at +-1 MPa": pressure_clipped,
+    "oil 1.5 GPa + pressure offset 0.2 MPa": lambda r: offset(r, "pressure", 2e5),
 }
 PLANT = {
     "valve flow gain -10 %": lambda p: p.updated("hydraulics", flow_gain=p.hydraulics.flow_gain * 0.9),
     "jack area +5 %": lambda p: p.updated("jack", area=p.jack.area * 1.05),
     "controller gain +15 %": lambda p: p.updated("controller", kp=p.controller.kp * 1.15),
     "hinge friction 300 -> 200 N": lambda p: p.updated("surface", hinge_friction=200.0),
+    "oil 0.8 GPa": lambda p: p.with_effects(compressibility={"enabled": True, "bulk_modulus": 8e8}),
+    "oil 1.5 GPa + pressure offset 0.2 MPa": lambda p: p.with_effects(compressibility={"enabled": True,
+                                                                                       "bulk_modulus": 1.5e9}),
 }
 
 
 def main() -> None:
-    names = sys.argv[1:] or list(ALTERED) + list(PLANT)
+    names = sys.argv[1:] or list(dict.fromkeys(list(ALTERED) + list(PLANT)))   # a name in both: plant and record
     ref, faults = load("reference"), Faults(0.3, 0.4, 0.3)
     for name in names:
         p = PLANT.get(name, lambda p: p)(ref).with_effect_names(["sensor_noise"])

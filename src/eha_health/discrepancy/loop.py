@@ -34,6 +34,7 @@ Nothing here imports ROS.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Callable
@@ -53,13 +54,14 @@ from ..identification.units import check_units
 from ..physics.faults import FAULT_NAMES
 from ..physics.params import ModelParams, load
 from ..physics.sequence import FDISequence
+from ..signals.cleaning import clean
 from ..signals.datachecks import check_channel
 from ..signals.frequency import ResponseError, response_errors
 from ..signals.kinematics import kinematics
 from ..signals.residuals import ResidualAnalysis, analyse, rest_noise_level
 from .candidates import CANDIDATES, Candidate, corrected
 from .evidence import (FREQUENCY, Result, Round, evaluate, prefer_consistent, prefer_simpler, rank, rediagnosed, rescan, retry_from_rediagnosis,
-                       screen, screened, sparse_order)
+                       retry_pruned, screen, screened, sparse_order)
 from .structure import locate
 from .report import NO_MISSING_EFFECT, UNEXPLAINED, DiscrepancyReport, State
 from .settings import Settings, fdi_settings
@@ -72,13 +74,16 @@ class _Split:
     settings: Settings
     segments: dict | None
     final_fit: str
+    excluded: dict | None = None     # channel -> mask of samples with no information (weight 0)
 
     def __post_init__(self):
         n = len(self.record)
         self.index = int(round(self.settings.fit_fraction * n))
         fit_mask = np.arange(n) < self.index
-        self.r_all, self.r_fit, self.r_held = (Residual(self.record), Residual(self.record, fit_mask),
-                                               Residual(self.record, ~fit_mask))
+        w = {c: (~m).astype(float) for c, m in (self.excluded or {}).items()} or None
+        self.r_all, self.r_fit, self.r_held = (Residual(self.record, sample_factors=w),
+                                               Residual(self.record, fit_mask, sample_factors=w),
+                                               Residual(self.record, ~fit_mask, sample_factors=w))
         self.r_final = self.r_all if self.final_fit == "all" else self.r_fit
         rec = self.record
         self.noise = ({c: rest_noise_level(y, rec.command, rec.sample_rate) for c, y in rec.channels.items()}
@@ -110,9 +115,25 @@ class _Split:
     def channels(self, out: np.ndarray) -> dict[str, np.ndarray]:
         return {c: out[:, CHANNEL_COLUMNS[c]].copy() for c in self.record.channels}
 
+    def measured(self, out: np.ndarray) -> dict[str, np.ndarray]:
+        """The recorded channels with the excluded samples set to ``out``'s (residual 0 there)."""
+        ex = self.excluded or {}
+        return {c: np.where(ex[c], out[:, CHANNEL_COLUMNS[c]], y) if c in ex else y
+                for c, y in self.record.channels.items()}
+
+    def rms(self, res: Residual, out: np.ndarray) -> dict[str, float]:
+        """Unweighted RMS per channel [SI] on ``res``'s samples, the excluded ones left out."""
+        ex = self.excluded or {}
+        rms = res.rms(out)
+        for c, m in ex.items():
+            keep = ~m[res.mask]
+            d = out[res.mask, CHANNEL_COLUMNS[c]][keep] - self.record.channels[c][res.mask][keep]
+            rms[c] = float(np.sqrt(np.mean(d ** 2))) if len(d) else float("nan")
+        return rms
+
     def analyse(self, out: np.ndarray, effects) -> ResidualAnalysis:
         """Residual analysis of ``out`` against the floor of the model holding ``effects``."""
-        return analyse(self.record.t, self.record.channels, self.channels(out), self.segments,
+        return analyse(self.record.t, self.measured(out), self.channels(out), self.segments,
                        self.settings.floor_with(effects), noise=self.noise)
 
     def state(self, f: FitResult, out_held: np.ndarray, effects: list[str], truth: dict | None,
@@ -123,13 +144,13 @@ class _Split:
         errors = {k: abs(values[k] - float(v)) for k, v in truth.items() if k in values} if truth else None
         infl = autocorr_inflation(f.residual, len(self.r_final.channels))
         floor = self.settings.floor_with(effects)
-        rms_fit, rms_held = self.r_fit.rms(out_held), self.r_held.rms(out_held)
+        rms_fit, rms_held = self.rms(self.r_fit, out_held), self.rms(self.r_held, out_held)
 
         def excess(rms):
             return {c: float(np.sqrt(max(v ** 2 - noise.get(c, 0.0) ** 2 - floor.get(c, 0.0) ** 2, 0.0)))
                     for c, v in rms.items()}
         return State(effects=list(effects), values=values, std=_with_measured_error(f.std(infl), values, noise),
-                     rms=self.r_all.rms(f.output),
+                     rms=self.rms(self.r_all, f.output),
                      rms_held_out=rms_held, fitness=self.r_all.cost(f.output), errors=errors, rms_fit=rms_fit,
                      excess_fit=excess(rms_fit), excess_held_out=excess(rms_held))
 
@@ -193,23 +214,33 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
         results = _round(rnd, remaining, anchors, say)
         runs += sum(r.model.runs for r in results)
         refitted = [r for r in results if r.evidence.refit]
-        if structured and rediagnose is not None and not rnd.passes(results[0].evidence, structured):
+
+        def passes(ev) -> bool:
+            # a further effect must also show on data it was not fitted to: the model already holds
+            # one, and what it leaves is partly that model's own form error, which a small extra knob
+            # can always bend to (measured: a 0.0017 flow asymmetry added after a null bias at
+            # K_BKL = 0.7, held-out power x0.77 with the excess already at the floor)
+            return rnd.passes(ev, structured) and (number == 1 or structured is not True
+                                                   or ev.held_out_ratio <= settings.held_out_ratio)
+        # (a further effect that fails only that gate is retried too: measured, a 0.2 MPa pressure
+        # offset after oil at 1.5 GPa, fitted 0.15 MPa from the base whose K_FSJ had absorbed part
+        # of it, held-out power x0.55)
+        if structured and rediagnose is not None and not passes(results[0].evidence):
             refitted, spent = retry_from_rediagnosis(rnd, refitted, remaining, anchors, len(before.x), rediagnose, say)
             runs += spent
             results = refitted + [r for r in results if not r.evidence.refit]
             results.sort(key=rank)
+            # the first round's base was identified without any effect: the one whose basin may be wrong
+            if number == 1 and not rnd.passes(results[0].evidence, structured):
+                results, spent = retry_pruned(rnd, results, remaining, anchors, len(before.x), rediagnose, say,
+                                              structured)
+                runs += spent
+                results.sort(key=rank)
             results = prefer_simpler(rnd, results, by_name.__getitem__)
             results = prefer_consistent(rnd, results)
         evidence += [r.evidence for r in results]
         top = results[0]
-        ok = rnd.passes(top.evidence, structured)
-        # a further effect must also show on data it was not fitted to: the model already holds
-        # one, and what it leaves is partly that model's own form error, which a small extra knob
-        # can always bend to (measured: a 0.0017 flow asymmetry added after a null bias at
-        # K_BKL = 0.7, held-out power x0.77 with the excess already at the floor)
-        if number > 1 and structured is True:
-            ok = ok and top.evidence.held_out_ratio <= settings.held_out_ratio
-        if not ok:
+        if not passes(top.evidence):
             break
         top.evidence.selected = True
         selected.append(top.evidence.name)
@@ -334,11 +365,22 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     say = progress or (lambda s: None)
     t0 = time.perf_counter()
     model = KnobModel(params if params is not None else load("monitor"), tuple(base_knobs), record)
-    split = _Split(record, settings, segments, final_fit)
     x = model.off() if x_start is None else np.asarray(x_start, float)
     if len(x) != len(base_knobs):
         raise ValueError(f"x_start has {len(x)} values for {len(base_knobs)} base knobs")
     check_units(model, x)
+    raw = record
+    # spikes, clipped and frozen samples out of every fit, a stationary interference line removed:
+    # neither is the actuator, and a candidate would otherwise bend to them (or none explain them)
+    out0 = model.run(x[None, :], count=False)[0]
+    cleaned = clean(record.t, record.channels, {c: out0[:, CHANNEL_COLUMNS[c]] for c in record.channels},
+                    record.command, record.sample_rate)
+    for line in cleaned.lines:
+        say(line)
+    if cleaned.changed:
+        record = dataclasses.replace(record, channels=cleaned.channels)
+        model = KnobModel(model.base, model.knobs, record)
+    split = _Split(record, settings, segments, final_fit, cleaned.excluded)
 
     say("fitting the model as it stands")
     before = least_squares(Problem(model, split.r_final), x)
@@ -356,7 +398,22 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
         say("final fit of every knob with the selected effects")
         after, spent = _final_fit(split, model, base, len(base_knobs), rediagnose)
         runs += spent
-        res_after = split.analyse(after.output, selected)
+        idle = _idle(model, after.x, selected, {c.name: c for c in candidates})
+        if idle:
+            # the joint fit from the re-identified faults holds none of an effect a later round chose
+            # from the base it had then (measured: oil at 0.8 GPa, mount_compliance selected second and
+            # fitted 1.6e-9 m/N on its off bound): the model is the one without it; refitted with it held off
+            say(f"final fit holds none of {', '.join(idle)}: dropped")
+            after = _without(split, model, after.x, idle, {c.name: c for c in candidates})
+            for ev in evidence:
+                if ev.name in idle:
+                    ev.selected = False
+                    ev.note = ((ev.note + "; ") if ev.note else "") + \
+                        "selected, then dropped: the final fit of every knob puts it at its off value"
+            selected = [s for s in selected if s not in idle]
+        res_after = split.analyse(after.output, selected) if selected else res_before
+        if not selected:
+            after = before
     bound = _on_bounds(model, after.x, len(base_knobs)) if selected else []
     verdict = ("model lacks: " + ", ".join(selected)) if selected else \
         UNEXPLAINED if res_before.structured else NO_MISSING_EFFECT
@@ -365,16 +422,34 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
             ": the effect is beyond the candidate's range, the coefficients with it are not to be trusted)"
     unexplained = locate(split.r_final, before, res_before, split.segments, len(base_knobs)) \
         if verdict == UNEXPLAINED else None
-    checks = [line for c, y in record.channels.items()
+    checks = cleaned.lines + [line for c, y in raw.channels.items()
               for line in check_channel(c, y, split.channels(after.output)[c] - y, noise[c], record.command,
                                         record.sample_rate)]
     return DiscrepancyReport(
         before=state_before, after=split.state(after, out_base, selected, truth, noise), candidates=evidence,
         selected=selected, verdict=verdict, residual_before=res_before, residual_after=res_after,
-        wall_time_s=time.perf_counter() - t0, runs=runs + model.runs, t=record.t, measured=dict(record.channels),
+        wall_time_s=time.perf_counter() - t0, runs=runs + model.runs, t=record.t, measured=dict(raw.channels),
         fitted_before=split.channels(before.output), fitted_after=split.channels(after.output),
         split_time_s=float(record.t[split.index]), unexplained=unexplained, data_checks=checks,
         pruned=[e.name for e in evidence if not e.refit], frequency_evidence=frequency)
+
+
+def _at_off(k: Knob, v: float) -> bool:
+    return abs(v - k.off) <= 1e-3 * (k.hi - k.lo)
+
+
+def _idle(model: KnobModel, x, selected: list[str], by_name: dict) -> list[str]:
+    """The selected effects whose every knob ``x`` holds at its off value (within 0.1 % of its range)."""
+    value = dict(zip((k.name for k in model.knobs), np.asarray(x, float)))
+    return [s for s in selected if all(_at_off(k, value[k.name]) for k in by_name[s].knobs)]
+
+
+def _without(split: _Split, model: KnobModel, x, idle: list[str], by_name: dict) -> FitResult:
+    """The final fit again with the knobs of the ``idle`` effects held at their off values."""
+    held = {k.name for s in idle for k in by_name[s].knobs}
+    x = np.array([k.off if k.name in held else v for k, v in zip(model.knobs, np.asarray(x, float))])
+    free = np.array([i for i, k in enumerate(model.knobs) if k.name not in held])
+    return least_squares(Problem(model, split.r_final, free), x)
 
 
 def _on_bounds(model: KnobModel, x, n_base: int) -> list[tuple[Knob, float]]:
@@ -384,7 +459,8 @@ def _on_bounds(model: KnobModel, x, n_base: int) -> list[tuple[Knob, float]]:
     a true 0.4)."""
     out = []
     for k, v in zip(model.knobs[n_base:], np.asarray(x, float)[n_base:]):
-        if min(v - k.lo, k.hi - v) <= 1e-3 * (k.hi - k.lo):      # a bounded fit stops just inside
+        # a bounded fit stops just inside; on the off end the knob holds none of the effect: not "beyond"
+        if min(v - k.lo, k.hi - v) <= 1e-3 * (k.hi - k.lo) and not _at_off(k, v):
             out.append((k, float(v)))
     return out
 

@@ -22,6 +22,8 @@ class Settings:
     scan: int = 12                     # grid points of an in-loop candidate's screening scan
     refits: int = 2                    # candidates refitted in full after screening: the best screened,
     sparse_refits: int = 1             # ... and the first of the sparse regression
+    pruned_retries: int = 4            # in-loop candidates pruned at screening retried from the base
+                                       # re-identified with them, when nothing passes (evidence.retry_pruned)
     floor: dict = field(default_factory=dict)   # per-channel residual floor of the model [SI]
     effect_floor: dict = field(default_factory=dict)  # {candidate: per-channel floor} once it is added
     rest_noise: bool = False           # noise also measured where the command rests (a rig's coloured

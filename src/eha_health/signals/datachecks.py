@@ -11,6 +11,8 @@ spikes, polarity.
 * periodic interference: a narrow peak of the residual spectrum (5 bins around the largest
   line hold >= ``share`` of its power) above the command's band (mains hum, a pump's
   ripple), named with its frequency;
+* frozen samples: runs of >= 10 equal values while the fitted model moves by more than 5 noise
+  standard deviations and 3 quantisation steps (a logger repeating its last value);
 * spikes: isolated one-sample outliers the model does not have (acquisition glitches): a second
   difference d2[n] = y[n] - (y[n-1] + y[n+1]) / 2 beyond 10 robust standard deviations, 5x the
   noise, 3 quantisation steps and 2 % of the channel's range, with the single-sample pattern
@@ -45,24 +47,43 @@ def quantisation_step(y: np.ndarray) -> float:
     return q
 
 
-def clipped_share(y: np.ndarray, model: np.ndarray | None = None, margin: float = 0.0, min_run: int = 3,
-                  factor: float = 3.0) -> float:
-    """Share of samples pinned at the channel's max or min: at least ``min_run`` of them, and
+def clipped(y: np.ndarray, model: np.ndarray | None = None, margin: float = 0.0, min_run: int = 3,
+            factor: float = 3.0) -> np.ndarray:
+    """Mask of the samples pinned at the channel's max or min: at least ``min_run`` of them, and
     ``factor`` times as many as at the next level inward (a smooth or quantised peak dwells
     about as long on its top level as on the one below it; a clipped one far longer). Given the
     fitted ``model`` of the channel, a side counts only where the model goes beyond the pinned
     level by more than ``margin`` on at least half of its pinned samples."""
     y = np.asarray(y, float)
+    out = np.zeros(len(y), bool)
     u, counts = np.unique(y, return_counts=True)
     if len(u) < 3:
-        return 0.0
-    pinned = 0
+        return out
     for level, ext, nb, sign in ((u[-1], counts[-1], counts[-2], 1.0), (u[0], counts[0], counts[1], -1.0)):
         if ext >= min_run and ext >= factor * nb:
-            if model is not None and np.mean(sign * (np.asarray(model, float)[y == level] - level) > margin) < 0.5:
+            at = y == level
+            if model is not None and np.mean(sign * (np.asarray(model, float)[at] - level) > margin) < 0.5:
                 continue
-            pinned += ext
-    return float(pinned / len(y))
+            out |= at
+    return out
+
+
+def frozen(y: np.ndarray, model: np.ndarray, noise_sd: float, step: float = 0.0, min_run: int = 10) -> np.ndarray:
+    """Mask of the samples in runs of at least ``min_run`` identical values while the fitted
+    ``model`` moves by more than max(5 ``noise_sd``, 3 ``step``) within the run: a logger that
+    repeated its last value (a dropout, a stalled buffer). A noisy channel never repeats a value
+    that long; at rest, or on a quantised slow ramp, the model does not move that much."""
+    y, m = np.asarray(y, float), np.asarray(model, float)
+    out = np.zeros(len(y), bool)
+    if len(y) < min_run:
+        return out
+    starts = np.flatnonzero(np.concatenate([[True], np.diff(y) != 0]))
+    ends = np.append(starts[1:], len(y))
+    moves = max(5.0 * noise_sd, 3.0 * step)
+    for a, b in zip(starts, ends):
+        if b - a >= min_run and np.ptp(m[a:b]) > moves:
+            out[a:b] = True
+    return out
 
 
 def spikes(y: np.ndarray, model: np.ndarray, noise_sd: float, step: float = 0.0, sigmas: float = 10.0,
@@ -140,7 +161,8 @@ def check_channel(name: str, y: np.ndarray, residual: np.ndarray, noise_sd: floa
     if q > 0 and q / np.sqrt(12.0) >= 0.25 * noise_sd:
         out.append(f"{name}: quantised in steps of {q:.3g} (error {q / np.sqrt(12.0):.3g} rms against noise "
                    f"{noise_sd:.3g})")
-    c = clipped_share(y, model, max(q, 2.0 * noise_sd))
+    pinned = clipped(y, model, max(q, 2.0 * noise_sd))
+    c = float(np.mean(pinned)) if len(y) else 0.0
     if c >= 0.005:
         out.append(f"{name}: {100 * c:.1f} % of the samples pinned at the channel's extreme value while the model "
                    f"goes beyond it (clipping at the transducer's range?)")
@@ -149,6 +171,10 @@ def check_channel(name: str, y: np.ndarray, residual: np.ndarray, noise_sd: floa
     if s >= share and f_pk > 2.0 * band:
         out.append(f"{name}: periodic interference at {f_pk:.1f} Hz ({100 * s:.0f} % of the residual power), "
                    f"above the command's band ({band:.1f} Hz)")
+    f = frozen(y, model, noise_sd, q) & ~pinned          # a clipped run is named as clipped
+    if f.any():
+        out.append(f"{name}: {int(f.sum())} sample(s) frozen in runs of >= 10 equal values while the model moves "
+                   f"(a logger repeating its last value), first at sample {int(np.argmax(f))}")
     k = spikes(y, model, noise_sd, q)
     if len(k):
         out.append(f"{name}: {len(k)} isolated one-sample spike(s), largest {np.max(np.abs(residual[k])):.3g} "
