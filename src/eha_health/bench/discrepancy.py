@@ -158,6 +158,7 @@ def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, faul
             # each coefficient's error after over its stated standard error (are the error bars honest?)
             "z_after": {k: e / rep.after.std[k] if rep.after.std.get(k, 0) > 0 else None
                         for k, e in rep.after.errors.items()},
+            "errors_after": dict(rep.after.errors), "std_after": {k: rep.after.std.get(k) for k in rep.after.errors},
             "runs": rep.runs, "refits": sum(c.refit for c in rep.candidates),
             # the loop's own time (the diagnosis it starts from excluded), and with the diagnosis
             "wall_time_s": rep.wall_time_s, "with_diagnosis_s": time.perf_counter() - t0})
