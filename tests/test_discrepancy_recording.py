@@ -255,6 +255,11 @@ def test_cleaning_excludes_what_carries_no_information_and_removes_a_stationary_
     assert np.std((out.channels["position"] - pos)[keep]) < 1.5e-6    # the line gone, the noise kept
     assert out.excluded["pressure"].sum() == pytest.approx((bad_prs == top).sum(), abs=2)
     assert any("excluded from the fit" in s and "clipped" in s for s in out.lines)
+    # clipped most of the time: its noise is read off the pinned samples (over all of them it is 0)
+    lo, hi = np.percentile(prs, [30, 70])
+    heavy = np.clip(prs, lo, hi)
+    out = clean(t, {"pressure": heavy}, {"pressure": model["pressure"]}, r.command, rate)
+    assert out.excluded["pressure"].mean() == pytest.approx(np.mean((heavy == lo) | (heavy == hi)), abs=0.01)
     burst = pos.copy()
     burst[:len(t) // 3] += 20e-6 * np.sin(2 * np.pi * 60.0 * t[:len(t) // 3])
     assert "position" not in clean(t, {"position": burst}, {"position": model["position"]}, r.command, rate).removed
@@ -273,3 +278,52 @@ def test_spikes_and_a_line_in_the_position_are_cleaned_not_explained():
     assert any("periodic interference at 60.0" in s and "removed" in s for s in rep.data_checks)
     assert max(rep.after.errors.values()) <= 0.01
     assert np.array_equal(rep.measured["position"], r.position)          # the report keeps the raw record
+
+
+def test_the_loops_measured_fault_error_makes_error_over_stated_error_one_and_round_trips(tmp_path):
+    """``fault_error_sd`` finds the constant term that, added in quadrature to stated errors that
+    are too small, brings the RMS of error / error to 1 (recovering the spread the errors were drawn
+    with); written into the settings file it is read back, the rest of the file kept."""
+    from importlib import resources
+    from eha_health.bench.discrepancy import fault_error_sd, fault_error_yaml
+    from eha_health.discrepancy.settings import fdi_settings
+    rng = np.random.default_rng(4)
+    stated = {"k_gm": 0.001, "k_fsj": 0.002, "k_bkl": 0.001}
+    missing = {"k_gm": 0.004, "k_fsj": 0.0, "k_bkl": 0.002}
+    cases = [{"effects": ["x"], "selected": ["x"],
+              "errors_after": {k: abs(rng.normal(0.0, np.hypot(stated[k], missing[k]))) for k in FAULT_NAMES},
+              "std_after": dict(stated)} for _ in range(400)]
+    cases.append({"effects": ["x"], "selected": [], "errors_after": {k: 1.0 for k in FAULT_NAMES},
+                  "std_after": dict(stated)})                       # not found: not counted
+    sd = fault_error_sd({"cases": cases})
+    assert sd["k_gm"] == pytest.approx(0.004, rel=0.15) and sd["k_bkl"] == pytest.approx(0.002, rel=0.25)
+    assert sd["k_fsj"] <= 0.5 * stated["k_fsj"]     # stated right: little to add (400 draws: RMS z within ~7 %)
+    z = [c["errors_after"]["k_gm"] / np.hypot(c["std_after"]["k_gm"], sd["k_gm"]) for c in cases[:-1]]
+    assert np.sqrt(np.mean(np.square(z))) == pytest.approx(1.0, abs=1e-6)
+    # a run whose stated errors already held the term: taken out first, the same answer
+    held = [{**c, "std_after": {k: float(np.hypot(v, sd[k])) for k, v in c["std_after"].items()}} for c in cases]
+    assert fault_error_sd({"cases": held}, sd) == pytest.approx(sd, rel=1e-6, abs=1e-9)
+    packaged = resources.files("eha_health").joinpath("data/discrepancy.yaml").read_text()
+    path = tmp_path / "discrepancy.yaml"
+    path.write_text(fault_error_yaml(packaged, sd, "eha-health bench discrepancy --write-fault-error X", 400))
+    path.write_text(fault_error_yaml(path.read_text(), sd, "again", 400))          # replaced, not appended
+    st = fdi_settings(path)
+    assert st.fault_error == pytest.approx({k: float(f"{v:.3g}") for k, v in sd.items()})
+    assert st.floor == fdi_settings().floor and st.effect_floor == fdi_settings().effect_floor
+    assert path.read_text().count("fault_error_sd:") == 2                       # the comment and the key
+
+
+@pytest.mark.parametrize("bag, faults", [("healthy", Faults(0, 0, 0)), ("gm_0.6", Faults(0.6, 0, 0)),
+                                         ("bkl_0.6", Faults(0, 0, 0.6))])
+def test_a_noise_free_recording_is_not_cleaned(bag, faults):
+    """A noise-free record repeats values on its physical plateaus (a saturated current, the zero
+    pressure of a backlash free play, the position at a step's end) where the monitor, which differs
+    in detail, moves or overshoots: before the noise condition 205-266 current samples of the shipped
+    bags were set aside as frozen and 12 position samples as clipped. Nothing is, now."""
+    from eha_health.io.bagrun import read_run
+    from eha_health.signals.cleaning import clean
+    r = read_run(f"bags/{bag}.mcap").response
+    m = simulate(kind="monitor", faults=faults)
+    out = clean(r.t, {c: getattr(r, c) for c in MEASURED}, {c: getattr(m, c)[:len(r.t)] for c in MEASURED},
+                r.command, r.sample_rate)
+    assert not out.changed, out.lines

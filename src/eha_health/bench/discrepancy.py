@@ -15,12 +15,13 @@ import time
 import numpy as np
 
 from scipy.interpolate import CubicSpline
+from scipy.optimize import brentq
 from scipy.signal import cont2discrete, lfilter
 
 from ..discrepancy.candidates import BY_NAME
 from ..discrepancy.loop import analyse_fdi_test
 from ..discrepancy.report import UNEXPLAINED
-from ..physics.faults import Faults
+from ..physics.faults import FAULT_NAMES, Faults
 from ..physics.model import simulate
 from ..identification.residual import CHANNEL_SCALES
 from ..physics.params import ModelParams, load
@@ -201,6 +202,35 @@ def summarise(cases: list[dict], seed: int) -> dict:
                               for k in (found[0]["z_after"] if found else {})
                               if all(c["z_after"].get(k) is not None for c in found)},
     }
+
+
+def fault_error_sd(res: dict, current: dict[str, float] | None = None) -> dict[str, float]:
+    """The constant 1-sd term per fault coefficient that, added in quadrature to the stated standard
+    errors, makes the RMS of error / standard error 1 over the cases where the true effects were all
+    selected (0 where it is <= 1 already). ``current``: the term the run's stated errors already
+    held (``Settings.fault_error``), taken out first."""
+    found = [c for c in res["cases"] if c["effects"] and set(c["effects"]) <= set(c["selected"])]
+    out = {}
+    for k in FAULT_NAMES:
+        err = np.array([c["errors_after"][k] for c in found])
+        cur = (current or {}).get(k, 0.0)
+        std = np.sqrt(np.maximum(np.array([c["std_after"][k] for c in found]) ** 2 - cur ** 2, 1e-300))
+
+        def excess(s0):
+            return float(np.sqrt(np.mean((err / np.hypot(std, s0)) ** 2))) - 1.0
+        out[k] = float(brentq(excess, 0.0, 1.0)) if len(found) and excess(0.0) > 0 else 0.0
+    return out
+
+
+def fault_error_yaml(text: str, sd: dict[str, float], command: str, n_cases: int) -> str:
+    """``text`` (data/discrepancy.yaml) with its ``fault_error_sd`` block replaced by ``sd``."""
+    keep = text.split("# fault_error_sd:")[0].rstrip("\n")
+    lines = ["# fault_error_sd: 1 sd per fault coefficient added in quadrature to the loop's stated error",
+             "#        once an effect is in the model (its fits err more than the whole-test fit whose",
+             f"#        measured terms the error already holds): RMS of error / error = 1 over the {n_cases}",
+             "#        bench cases whose effects were all found. Made by:",
+             f"#        {command}", "fault_error_sd:"] + [f"  {k}: {v:.3g}" for k, v in sd.items()]
+    return keep + "\n" + "\n".join(lines) + "\n"
 
 
 def format_synthetic(res: dict) -> str:

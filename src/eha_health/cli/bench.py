@@ -30,8 +30,12 @@ def bench_floor(args) -> int:
     eff = effect_floor(seed=(args.seed or 2024) + 1, progress=prog)
     if args.write:
         st = Settings()
-        Path(args.write).write_text(floor_yaml(res, "eha-health " + " ".join(args.raw),
-                                               {"held_out_ratio": st.held_out_ratio, "fit_ratio": st.fit_ratio}, eff))
+        text = floor_yaml(res, "eha-health " + " ".join(args.raw),
+                          {"held_out_ratio": st.held_out_ratio, "fit_ratio": st.fit_ratio}, eff)
+        old = Path(args.write).read_text() if Path(args.write).exists() else ""
+        if "# fault_error_sd:" in old:           # measured by bench discrepancy: kept
+            text += "# fault_error_sd:" + old.split("# fault_error_sd:", 1)[1]
+        Path(args.write).write_text(text)
     print(json.dumps({**res, "effects": eff}, indent=2))
     return 0
 
@@ -47,6 +51,14 @@ def bench_discrepancy(args) -> int:
         raise UsageError(f"--fault-sets must be within 1..{len(FAULT_SETS)}")
     res = synthetic(seed=args.seed or 0, n_noise=args.random or 6, progress=progress(args), effects=effects,
                     fault_sets=FAULT_SETS[:args.fault_sets], two_effects=not args.no_two)
+    if args.write_fault_error:
+        from ..bench.discrepancy import fault_error_sd, fault_error_yaml
+        from ..discrepancy.settings import fdi_settings
+        target = Path(args.write_fault_error)
+        res["fault_error_sd"] = fault_error_sd(res, fdi_settings(target if target.exists() else None).fault_error)
+        n = sum(1 for c in res["cases"] if c["effects"] and set(c["effects"]) <= set(c["selected"]))
+        target.write_text(fault_error_yaml(target.read_text() if target.exists() else "", res["fault_error_sd"],
+                                           "eha-health " + " ".join(args.raw), n))
     print(json.dumps(res, indent=2, default=float) if args.json else "\n" + format_synthetic(res))
     return 0
 
@@ -213,6 +225,9 @@ def register(sub) -> None:
     b.add_argument("--fault-sets", type=int, default=3, metavar="N",
                    help="discrepancy: the first N fault sets (0,0,0), (0.4,0.5,0), (0.3,0.4,0.3)")
     b.add_argument("--no-two", action="store_true", help="discrepancy: skip the two-effect cases")
+    b.add_argument("--write-fault-error", metavar="YAML",
+                   help="discrepancy: write the fault coefficients' measured error with effects in the model "
+                        "(fault_error_sd) into the settings file, e.g. src/eha_health/data/discrepancy.yaml")
     b.add_argument("--no-de", action="store_true", help="paper: skip the scipy differential_evolution peer")
     b.add_argument("--markdown", help="paper: write the tables to this Markdown file; rul: write the figures into "
                                       "this file (between its 'bench rul' markers if it has them, e.g. "

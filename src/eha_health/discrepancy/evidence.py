@@ -421,11 +421,13 @@ def _retry(rnd: Round, res: Result, cand: Candidate, anchors: list[np.ndarray], 
     k0 = cand.knobs[0]
     probe = [res.evidence.parameters[k0.name] if k0.recording else k0.typical] + [k.off for k in cand.knobs[1:]]
     x, spent = rediagnosed(res.model, np.concatenate([rnd.base.x, probe]), n_base, rediagnose)
-    # round 1: a probe that does not lower the fit-part power to the fit gate cannot pass (the gate
-    # saves the refit); a later round's probe is judged by the refit itself: its base holds an
-    # effect whose knobs the probe does not re-size (measured: a 0.2 MPa pressure offset after oil
-    # at 1.5 GPa, probe x0.8+ of the base, its refit from the probe's faults x0.44, held out x0.06)
-    if rnd.number == 1 and rnd.r_fit.cost(res.model.run(x)[0]) > rnd.settings.fit_ratio * rnd.base.cost:
+    # a probe that does not lower the fit-part power to the fit gate cannot pass (the gate saves the
+    # refit) -- except for a later round's effect that passed the gates but the held-out power itself:
+    # the round's base holds an effect whose knobs the probe does not re-size, and the refit judges
+    # (measured: a 0.2 MPa pressure offset after oil at 1.5 GPa, probe x0.8+ of the base, its refit
+    # from the probe's faults x0.44, held out x0.06)
+    gated = rnd.number == 1 or not rnd.passes(res.evidence, rnd.structured)
+    if gated and rnd.r_fit.cost(res.model.run(x)[0]) > rnd.settings.fit_ratio * rnd.base.cost:
         return res, spent + 1
     new = evaluate(rnd, cand, list(anchors) + [x[:len(rnd.base.x)]])
     return (new if rank(new) < rank(res) else res), spent + 1 + new.model.runs
@@ -435,9 +437,10 @@ def retry_from_rediagnosis(rnd: Round, results: list[Result], candidates, anchor
                            rediagnose, say) -> tuple[list[Result], int]:
     """Candidates evaluated again from the ``n_base`` base knobs re-identified with each in the model.
 
-    In round 1, only a candidate whose re-identified model (its first knob at its typical value, any
-    other absent) lowers the fit-part residual power to the fit gate is evaluated again (the others
-    cannot pass); its new evidence replaces the old when it ranks better. Returns the results
+    Only a candidate whose re-identified model (its first knob at its typical value, any other
+    absent) lowers the fit-part residual power to the fit gate is evaluated again (the others
+    cannot pass; in a later round, one that passed every gate but the held-out power itself is
+    evaluated again in any case); its new evidence replaces the old when it ranks better. Returns the results
     (unsorted) and the model runs spent.
     """
     by_name = {c.name: c for c in candidates}

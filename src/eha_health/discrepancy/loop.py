@@ -149,19 +149,25 @@ class _Split:
         def excess(rms):
             return {c: float(np.sqrt(max(v ** 2 - noise.get(c, 0.0) ** 2 - floor.get(c, 0.0) ** 2, 0.0)))
                     for c, v in rms.items()}
-        return State(effects=list(effects), values=values, std=_with_measured_error(f.std(infl), values, noise),
+        std = _with_measured_error(f.std(infl), values, noise, self.settings.fault_error if effects else None)
+        return State(effects=list(effects), values=values, std=std,
                      rms=self.rms(self.r_all, f.output),
                      rms_held_out=rms_held, fitness=self.r_all.cost(f.output), errors=errors, rms_fit=rms_fit,
                      excess_fit=excess(rms_fit), excess_held_out=excess(rms_held))
 
 
-def _with_measured_error(std: dict[str, float], values: dict[str, float], noise: dict[str, float]) -> dict:
+def _with_measured_error(std: dict[str, float], values: dict[str, float], noise: dict[str, float],
+                         effect_error: dict[str, float] | None = None) -> dict:
     """The fault coefficients' Gauss-Newton errors plus, in quadrature, the measured model-form and
     noise errors of a whole-test fit (the loop's fits finish on the whole-test cost, a saw-tooth in
-    K_BKL, as the deterministic method does: its block of data/model_error.yaml)."""
+    K_BKL, as the deterministic method does: its block of data/model_error.yaml) and, for a model
+    that holds added effects, ``effect_error`` (``fault_error_sd`` of data/discrepancy.yaml: what the
+    coefficients err beyond those terms once an effect is in the model, measured by the bench)."""
     if not all(n in values for n in FAULT_NAMES):
         return std                       # a rig's base knobs: no measured terms
     extra = measured_error([values[n] for n in FAULT_NAMES], noise.get("position", 0.0), "deterministic")
+    added = np.array([(effect_error or {}).get(n, 0.0) for n in FAULT_NAMES])
+    extra = np.hypot(extra, added)
     return {k: float(np.hypot(v, extra[FAULT_NAMES.index(k)])) if k in FAULT_NAMES else v for k, v in std.items()}
 
 

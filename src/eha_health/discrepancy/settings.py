@@ -26,6 +26,8 @@ class Settings:
                                        # re-identified with them, when nothing passes (evidence.retry_pruned)
     floor: dict = field(default_factory=dict)   # per-channel residual floor of the model [SI]
     effect_floor: dict = field(default_factory=dict)  # {candidate: per-channel floor} once it is added
+    fault_error: dict = field(default_factory=dict)   # {fault coefficient: 1 sd} its error once an effect
+                                                      # is in the model, beyond the whole-test fit's terms
     rest_noise: bool = False           # noise also measured where the command rests (a rig's coloured
                                        # interference; residuals.rest_noise_level)
     frequency_evidence: bool = False   # a broadband record (a rig's chirp): the held-out position/command
@@ -51,5 +53,6 @@ def fdi_settings(path: str | Path | None = None) -> Settings:
     fl = {k: float(v) for k, v in (data.get("floor") or {}).items()}
     ef = {e: {k: float(v) for k, v in (chans or {}).items()} for e, chans in (data.get("effect_floor") or {}).items()}
     th = data.get("thresholds") or {}
+    fe = {k: float(v) for k, v in (data.get("fault_error_sd") or {}).items()}
     return Settings(**{k: float(v) for k, v in th.items() if k in ("held_out_ratio", "fit_ratio")}, floor=fl,
-                    effect_floor=ef)
+                    effect_floor=ef, fault_error=fe)

@@ -4,8 +4,9 @@ The data checks (:mod:`.datachecks`) name it; this module acts on it, channel by
 a model output of the record (the diagnosis it starts from):
 
 * **samples with no information** -- one-sample spikes (:func:`~.datachecks.spikes`), samples
-  pinned at a transducer's range while the model goes beyond it (:func:`~.datachecks.clipped`) and
-  runs a logger froze (:func:`~.datachecks.frozen`) -- are *excluded*: weight 0 in every fit, and
+  pinned at a transducer's range while the model goes beyond it (:func:`~.datachecks.clipped`, on a
+  channel with measurable noise and from the share the data check names) and runs a logger froze
+  (:func:`~.datachecks.frozen`) -- are *excluded*: weight 0 in every fit, and
   filled with the model's value so that the residual statistics, the noise estimate and the
   kinematic evidence do not see them;
 * **periodic interference** -- a line of the residual spectrum above twice the command's band
@@ -24,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .channels import UNITS
-from .datachecks import clipped, command_band, frozen, quantisation_step, spikes
+from .datachecks import CLIPPED_SHARE, clipped, command_band, frozen, noisy, quantisation_step, spikes
 from .residuals import noise_level, spectrum_peak
 
 #: A residual line holding this share of the power, above twice the command's band, is interference.
@@ -88,6 +89,10 @@ def clean(t: np.ndarray, channels: dict[str, np.ndarray], model: dict[str, np.nd
         unit = UNITS.get(c, "")
         sd, q = noise_level(y), quantisation_step(y)
         cl = clipped(y, m, max(q, 2.0 * sd))
+        # (the noise off the pinned samples: a channel clipped most of the time reads 0 over all of them)
+        if not noisy(y, noise_level(y, cl)) or np.mean(cl) < CLIPPED_SHARE:
+            # as the data check names it: a noise-free plateau at the model's overshoot is not a range
+            cl = np.zeros(len(y), bool)
         parts = {"spikes": np.zeros(len(y), bool), "clipped": cl, "frozen": frozen(y, m, sd, q) & ~cl}
         parts["spikes"][spikes(y, m, sd, q)] = True
         bad = parts["spikes"] | parts["clipped"] | parts["frozen"]

@@ -29,9 +29,13 @@ from scipy import stats
 from .channels import UNITS
 
 
-def noise_level(y: np.ndarray) -> float:
-    """White-noise standard deviation of a sampled channel, from its second differences."""
+def noise_level(y: np.ndarray, exclude: np.ndarray | None = None) -> float:
+    """White-noise standard deviation of a sampled channel, from its second differences (those
+    touching a sample of the mask ``exclude`` left out)."""
     d2 = np.diff(np.asarray(y, float), 2)
+    if exclude is not None:
+        ex = np.asarray(exclude, bool)
+        d2 = d2[~(ex[:-2] | ex[1:-1] | ex[2:])]
     if len(d2) < 10:
         return 0.0
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
