@@ -411,6 +411,11 @@ def rediagnosed(model: KnobModel, x: np.ndarray, n_base: int, rediagnose) -> tup
     return alt, spent
 
 
+#: Retries run side by side before the gates are checked (:func:`retry_from_rediagnosis`, :func:`retry_pruned`):
+#: a fixed number, so that the report does not depend on the threads.
+RETRY_BATCH = 2
+
+
 def _retry(rnd: Round, res: Result, cand: Candidate, anchors: list[np.ndarray], n_base: int,
            rediagnose, say) -> tuple[Result, int]:
     """``res`` evaluated again from the base knobs re-identified with ``cand`` in the model; the
@@ -433,59 +438,59 @@ def _retry(rnd: Round, res: Result, cand: Candidate, anchors: list[np.ndarray], 
     return (new if rank(new) < rank(res) else res), spent + 1 + new.model.runs
 
 
+def _retry_in_batches(rnd: Round, results: list[Result], order: list[int], candidates, anchors: list[np.ndarray],
+                      n_base: int, rediagnose, say, passes: Callable[[CandidateEvidence], bool] | None
+                      ) -> tuple[list[Result], int]:
+    """``results[i]`` for i in ``order`` retried (:func:`_retry`), :data:`RETRY_BATCH` side by side,
+    until one of a batch passes ``passes`` (None: all of them). Returns the results and the runs spent."""
+    by_name = {c.name: c for c in candidates}
+    results, spent = list(results), 0
+    for j in range(0, len(order), RETRY_BATCH):
+        batch = order[j:j + RETRY_BATCH]
+        # independent retries: one thread each (the model runs release the GIL)
+        done = concurrently(lambda i: _retry(rnd, results[i], by_name[results[i].evidence.name], anchors, n_base,
+                                              rediagnose, say), batch)
+        for i, (res, n) in zip(batch, done):
+            results[i], spent = res, spent + n
+        if passes is not None and any(passes(results[i].evidence) for i in batch):
+            break
+    return results, spent
+
+
 def retry_from_rediagnosis(rnd: Round, results: list[Result], candidates, anchors: list[np.ndarray], n_base: int,
-                           rediagnose, say) -> tuple[list[Result], int]:
+                           rediagnose, say, passes: Callable[[CandidateEvidence], bool] | None = None
+                           ) -> tuple[list[Result], int]:
     """Candidates evaluated again from the ``n_base`` base knobs re-identified with each in the model.
 
     Only a candidate whose re-identified model (its first knob at its typical value, any other
     absent) lowers the fit-part residual power to the fit gate is evaluated again (the others
     cannot pass; in a later round, one that passed every gate but the held-out power itself is
-    evaluated again in any case); its new evidence replaces the old when it ranks better. Returns the results
-    (unsorted) and the model runs spent.
+    evaluated again in any case); its new evidence replaces the old when it ranks better. In the
+    order of their fit ratio (the best fits first: they are the ones that pass the probe and pay a
+    refit), :data:`RETRY_BATCH` side by side, until one passes ``passes`` (the round's gates; None:
+    every candidate). Returns the results (unsorted) and the model runs spent.
     """
-    by_name = {c.name: c for c in candidates}
-
-    def retry(res: Result) -> tuple[Result, int]:
-        return _retry(rnd, res, by_name[res.evidence.name], anchors, n_base, rediagnose, say)
-
-    # the candidates' retries are independent: one thread each (the model runs release the GIL),
-    # the best fits first, as they are the ones that pass the probe and pay a refit
     order = sorted(range(len(results)), key=lambda i: results[i].evidence.fit_ratio)
-    done = dict(zip(order, concurrently(retry, [results[i] for i in order])))
-    return [done[i][0] for i in range(len(results))], sum(n for _, n in done.values())
-
-
-#: Pruned candidates retried side by side before the gates are checked (:func:`retry_pruned`).
-RETRY_BATCH = 2
+    return _retry_in_batches(rnd, results, order, candidates, anchors, n_base, rediagnose, say, passes)
 
 
 def retry_pruned(rnd: Round, results: list[Result], candidates, anchors: list[np.ndarray], n_base: int,
                  rediagnose, say, structured: bool | str) -> tuple[list[Result], int]:
     """In-loop candidates pruned at screening, retried as :func:`retry_from_rediagnosis` does, in
-    the order of their screened fit ratio, :data:`RETRY_BATCH` at a time (side by side; a fixed
-    number, so that the report does not depend on the threads), until one passes the round's gates
-    or ``settings.pruned_retries`` have been tried (the loop calls it in its first round only, whose
-    base was identified without any effect).
+    the order of their screened fit ratio, :data:`RETRY_BATCH` at a time, until one passes the
+    round's gates or ``settings.pruned_retries`` have been tried (the loop calls it in its first
+    round only, whose base was identified without any effect).
 
     Their screen ran from the base knobs identified without them, and an in-loop effect can move
     the fit to another basin where that screen sees nothing (measured: oil at 0.8 GPa with faults
     (0.3, 0.4, 0.3), diagnosed K_BKL 0.012 and K_FSJ 0.24 without it; compressibility screened at
     fit x0.976, seventh by dIC, and the verdict was "unexplained"). Returns the results (unsorted)
     and the model runs spent."""
-    by_name = {c.name: c for c in candidates}
-    order = sorted((i for i, r in enumerate(results) if not r.evidence.refit
-                    and by_name[r.evidence.name].kind != RECORDING_CHAIN),
-                   key=lambda i: results[i].evidence.fit_ratio)[:rnd.settings.pruned_retries]
-    results, spent = list(results), 0
-    for j in range(0, len(order), RETRY_BATCH):
-        batch = order[j:j + RETRY_BATCH]
-        done = concurrently(lambda i: _retry(rnd, results[i], by_name[results[i].evidence.name], anchors, n_base,
-                                              rediagnose, say), batch)
-        for i, (res, n) in zip(batch, done):
-            results[i], spent = res, spent + n
-        if any(rnd.passes(results[i].evidence, structured) for i in batch):
-            break
-    return results, spent
+    kind = {c.name: c.kind for c in candidates}
+    pruned = [i for i, r in enumerate(results) if not r.evidence.refit and kind[r.evidence.name] != RECORDING_CHAIN]
+    order = sorted(pruned, key=lambda i: results[i].evidence.fit_ratio)[:rnd.settings.pruned_retries]
+    return _retry_in_batches(rnd, results, order, candidates, anchors, n_base, rediagnose, say,
+                             lambda ev: rnd.passes(ev, structured))
 
 
 def rescan(model: KnobModel, residual: Residual, start: FitResult, n_base: int,

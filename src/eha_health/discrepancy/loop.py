@@ -232,7 +232,8 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
         # offset after oil at 1.5 GPa, fitted 0.15 MPa from the base whose K_FSJ had absorbed part
         # of it, held-out power x0.55)
         if structured and rediagnose is not None and not passes(results[0].evidence):
-            refitted, spent = retry_from_rediagnosis(rnd, refitted, remaining, anchors, len(before.x), rediagnose, say)
+            refitted, spent = retry_from_rediagnosis(rnd, refitted, remaining, anchors, len(before.x), rediagnose, say,
+                                                     passes)
             runs += spent
             results = refitted + [r for r in results if not r.evidence.refit]
             results.sort(key=rank)
