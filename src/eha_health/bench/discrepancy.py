@@ -204,12 +204,17 @@ def summarise(cases: list[dict], seed: int) -> dict:
     }
 
 
+def all_found(cases: list[dict]) -> list[dict]:
+    """The cases with effects whose every effect was selected (single- and two-effect ones)."""
+    return [c for c in cases if c["effects"] and set(c["effects"]) <= set(c["selected"])]
+
+
 def fault_error_sd(res: dict, current: dict[str, float] | None = None) -> dict[str, float]:
     """The constant 1-sd term per fault coefficient that, added in quadrature to the stated standard
     errors, makes the RMS of error / standard error 1 over the cases where the true effects were all
     selected (0 where it is <= 1 already). ``current``: the term the run's stated errors already
     held (``Settings.fault_error``), taken out first."""
-    found = [c for c in res["cases"] if c["effects"] and set(c["effects"]) <= set(c["selected"])]
+    found = all_found(res["cases"])
     out = {}
     for k in FAULT_NAMES:
         err = np.array([c["errors_after"][k] for c in found])

@@ -52,13 +52,12 @@ def bench_discrepancy(args) -> int:
     res = synthetic(seed=args.seed or 0, n_noise=args.random or 6, progress=progress(args), effects=effects,
                     fault_sets=FAULT_SETS[:args.fault_sets], two_effects=not args.no_two)
     if args.write_fault_error:
-        from ..bench.discrepancy import fault_error_sd, fault_error_yaml
+        from ..bench.discrepancy import all_found, fault_error_sd, fault_error_yaml
         from ..discrepancy.settings import fdi_settings
         target = Path(args.write_fault_error)
         res["fault_error_sd"] = fault_error_sd(res, fdi_settings(target if target.exists() else None).fault_error)
-        n = sum(1 for c in res["cases"] if c["effects"] and set(c["effects"]) <= set(c["selected"]))
         target.write_text(fault_error_yaml(target.read_text() if target.exists() else "", res["fault_error_sd"],
-                                           "eha-health " + " ".join(args.raw), n))
+                                           "eha-health " + " ".join(args.raw), len(all_found(res["cases"]))))
     print(json.dumps(res, indent=2, default=float) if args.json else "\n" + format_synthetic(res))
     return 0
 

@@ -375,11 +375,10 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     x = model.off() if x_start is None else np.asarray(x_start, float)
     if len(x) != len(base_knobs):
         raise ValueError(f"x_start has {len(x)} values for {len(base_knobs)} base knobs")
-    check_units(model, x)
+    out0 = check_units(model, x)
     raw = record
     # spikes, clipped and frozen samples out of every fit, a stationary interference line removed:
     # neither is the actuator, and a candidate would otherwise bend to them (or none explain them)
-    out0 = model.run(x[None, :], count=False)[0]
     cleaned = clean(record.t, record.channels, {c: out0[:, CHANNEL_COLUMNS[c]] for c in record.channels},
                     record.command, record.sample_rate)
     for line in cleaned.lines:
@@ -405,22 +404,21 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
         say("final fit of every knob with the selected effects")
         after, spent = _final_fit(split, model, base, len(base_knobs), rediagnose)
         runs += spent
-        idle = _idle(model, after.x, selected, {c.name: c for c in candidates})
+        by_name = {c.name: c for c in candidates}
+        idle = _idle(model, after.x, selected, by_name)
         if idle:
             # the joint fit from the re-identified faults holds none of an effect a later round chose
             # from the base it had then (measured: oil at 0.8 GPa, mount_compliance selected second and
             # fitted 1.6e-9 m/N on its off bound): the model is the one without it; refitted with it held off
             say(f"final fit holds none of {', '.join(idle)}: dropped")
-            after = _without(split, model, after.x, idle, {c.name: c for c in candidates})
             for ev in evidence:
                 if ev.name in idle:
                     ev.selected = False
                     ev.note = ((ev.note + "; ") if ev.note else "") + \
                         "selected, then dropped: the final fit of every knob puts it at its off value"
             selected = [s for s in selected if s not in idle]
+            after = _without(split, model, after.x, idle, by_name) if selected else before
         res_after = split.analyse(after.output, selected) if selected else res_before
-        if not selected:
-            after = before
     bound = _on_bounds(model, after.x, len(base_knobs)) if selected else []
     verdict = ("model lacks: " + ", ".join(selected)) if selected else \
         UNEXPLAINED if res_before.structured else NO_MISSING_EFFECT

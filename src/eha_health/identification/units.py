@@ -51,10 +51,11 @@ def unit_gains(model: KnobModel, x=None, out: np.ndarray | None = None) -> dict[
     return gains
 
 
-def check_units(model: KnobModel, x=None) -> None:
+def check_units(model: KnobModel, x=None) -> np.ndarray:
     """Raise ``ValueError`` naming the first channel whose recording is more than :data:`LIMIT`
     times larger or smaller than the model's at ``x`` (default: healthy), whose sign is inverted
-    against it, or a pressure that is one chamber's instead of the differential."""
+    against it, or a pressure that is one chamber's instead of the differential. Returns the
+    model's output at ``x`` (the run the check made)."""
     out = _output(model, x)
     for c, g in unit_gains(model, x, out).items():
         if np.isfinite(g) and g != 0 and max(abs(g), 1 / abs(g)) > LIMIT:
@@ -77,3 +78,4 @@ def check_units(model: KnobModel, x=None) -> None:
                              f"sign is inverted in the acquisition (a transducer wired the other way round"
                              f"{', or P2 - P1 recorded for P1 - P2' if c == 'pressure' else ''})? Flip it "
                              f"(scale: -1 for its column in an `eha-health import` channel map)")
+    return out
