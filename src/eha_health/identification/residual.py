@@ -78,13 +78,29 @@ class Residual:
         r = self(out)
         return float(r @ r)
 
-    def costs(self, outs: np.ndarray) -> np.ndarray:
-        """Squared norms for a batch of outputs ``[B, n, N_OUT]``."""
-        o = outs if self._whole else outs[:, self.mask]
-        d = (o[:, :, self.cols] - self.y[None]) * self._W
+    def _batch(self, outs: np.ndarray) -> np.ndarray:
+        # (the channels' columns first: a masked copy of every output column was most of the time)
+        o = outs[:, :, self.cols]
+        if not self._whole:
+            o = o[:, self.mask]
+        d = (o - self.y[None]) * self._W
         if self._starts is not None:
             d = np.add.reduceat(d, self._starts, axis=1) * self._block[None]
-        return np.einsum("bnc,bnc->b", d, d)
+        return d
+
+    def residuals(self, outs: np.ndarray) -> np.ndarray:
+        """The residual vectors of a batch of outputs ``[B, n, N_OUT]``: ``[B, m]``."""
+        d = self._batch(outs)
+        return d.reshape(len(d), -1)
+
+    def costs(self, outs: np.ndarray) -> np.ndarray:
+        """Squared norms for a batch of outputs ``[B, n, N_OUT]``."""
+        return self.costs_and_residuals(outs)[0]
+
+    def costs_and_residuals(self, outs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`costs` and :meth:`residuals` of one batch, from one pass over it."""
+        d = self._batch(outs)
+        return np.einsum("bnc,bnc->b", d, d), d.reshape(len(d), -1)
 
     def expected_noise_cost(self, sigma: dict[str, float]) -> float:
         """Expected cost of white measurement noise of standard deviation ``sigma[c]`` [SI] per channel:
