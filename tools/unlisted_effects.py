@@ -9,9 +9,10 @@ transducer, a channel held at a quarter of the rate, a velocity differentiated f
 a nonlinear pressure transducer, mains hum with a current offset, two recording effects on two
 channels, one chamber's pressure recorded as P12, a pressure with its sign inverted, one-sample
 glitches, a logger that froze, a hum on the position, a clipped pressure transducer, a different
-sign or size of the bench's ones, and nominal-parameter changes in the plant (valve flow gain,
-jack area, controller gain, hinge friction; oil softer than the bench's, alone and with a
-pressure offset). One noisy reference run at faults
+sign or size of the bench's ones, quantisation, coloured and stronger noise, a dropout written as
+NaN, a channel in mA or with its sign inverted, and nominal-parameter changes in the plant (valve
+flow gain, jack area, controller gain either way, hinge friction, supply, leakage, a slower
+valve; oil softer than the bench's, alone and with a pressure offset). One noisy reference run at faults
 (0.3, 0.4, 0.3), seed 777, up to two effects; per case the verdict, the selection, the first
 three candidates, the data checks, the largest fault-coefficient error before -> after and the
 loop's time (or the error that refused the record before any fit). The figures of docs/discrepancy.md ("Alterations the bench does not list") come
@@ -20,7 +21,7 @@ from this script.
 import sys
 
 import numpy as np
-from scipy.signal import cont2discrete, lfilter
+from scipy.signal import butter, cont2discrete, lfilter
 
 from eha_health.bench.discrepancy import all_late, drifting, fast_clock, lagged, late, offset, scaled
 from eha_health.discrepancy.loop import analyse_fdi_test
@@ -96,6 +97,43 @@ def hum_and_current_offset(r):
     return r
 
 
+def quantised(r, channel, step):
+    setattr(r, channel, np.round(getattr(r, channel) / step) * step)
+    return r
+
+
+def coloured_position_noise(r, sd=8e-6, f_hz=5.0):
+    """Low-frequency noise on the position (second-order Butterworth below ``f_hz``), ``sd`` [m] RMS."""
+    b, a = butter(2, f_hz / (r.sample_rate / 2))
+    n = lfilter(b, a, np.random.default_rng(9).normal(0.0, 1.0, len(r.t)))
+    r.position = r.position + n * sd / n.std()
+    return r
+
+
+def more_noise(r, k=3.0):
+    """White noise ``k`` x the default sensor noise added on every channel (4x its power in all)."""
+    rng = np.random.default_rng(10)
+    for c, sd in (("position", 5e-6), ("velocity", 2e-4), ("pressure", 2e4), ("current", 2e-6)):
+        setattr(r, c, getattr(r, c) + rng.normal(0.0, k * sd, len(r.t)))
+    return r
+
+
+def pressure_gap(r):
+    r.pressure = r.pressure.copy()
+    r.pressure[1200:1220] = np.nan                   # a logger dropout written as NaN
+    return r
+
+
+def current_in_ma(r):
+    r.current = r.current * 1e3
+    return r
+
+
+def inverted_velocity(r):
+    r.velocity = -r.velocity
+    return r
+
+
 ALTERED = {
     "position drift 30 um/s": lambda r: drifting(r, "position", 30e-6),
     "every channel 3 ms late": lambda r: all_late(r, 3e-3),
@@ -115,12 +153,27 @@ ALTERED = {
     "position 60 Hz hum 10 um": position_hum,
     "pressure clipped at +-1 MPa": pressure_clipped,
     "oil 1.5 GPa + pressure offset 0.2 MPa": lambda r: offset(r, "pressure", 2e5),
+    "position quantised 20 um": lambda r: quantised(r, "position", 20e-6),
+    "pressure quantised 50 kPa": lambda r: quantised(r, "pressure", 5e4),
+    "position coloured noise 8 um below 5 Hz": coloured_position_noise,
+    "noise x4 on every channel": more_noise,
+    "velocity offset 5 mm/s": lambda r: offset(r, "velocity", 5e-3),
+    "current 1.5 ms early": lambda r: late(r, "current", -1.5e-3),
+    "pressure lag 3 ms + position offset 0.2 mm": lambda r: offset(lagged(r, "pressure", 3e-3), "position", 2e-4),
+    "pressure NaN for 20 samples": pressure_gap,
+    "current recorded in mA": current_in_ma,
+    "velocity sign inverted": inverted_velocity,
 }
 PLANT = {
     "valve flow gain -10 %": lambda p: p.updated("hydraulics", flow_gain=p.hydraulics.flow_gain * 0.9),
     "jack area +5 %": lambda p: p.updated("jack", area=p.jack.area * 1.05),
     "controller gain +15 %": lambda p: p.updated("controller", kp=p.controller.kp * 1.15),
     "hinge friction 300 -> 200 N": lambda p: p.updated("surface", hinge_friction=200.0),
+    "controller gain -15 %": lambda p: p.updated("controller", kp=p.controller.kp * 0.85),
+    "supply 10 % low": lambda p: p.updated("hydraulics", supply_pressure=p.hydraulics.supply_pressure * 0.9),
+    "leakage x20": lambda p: p.updated("hydraulics", leakage=p.hydraulics.leakage * 20),
+    "slower valve (spool end area x1.6)": lambda p: p.updated("flapper_nozzle",
+                                                              spool_end_area=p.flapper_nozzle.spool_end_area * 1.6),
     "oil 0.8 GPa": lambda p: p.with_effects(compressibility={"enabled": True, "bulk_modulus": 8e8}),
     "oil 1.5 GPa + pressure offset 0.2 MPa": lambda p: p.with_effects(compressibility={"enabled": True,
                                                                                        "bulk_modulus": 1.5e9}),

@@ -42,6 +42,9 @@ EFFECTS: tuple[tuple[str, object], ...] = (
     ("mount_compliance", lambda p: p.updated("linkage", stiffness=5e6)),
     ("flow_asymmetry", lambda p: p.updated("hydraulics", flow_asymmetry=0.1)),
     ("vibration_null_shift", lambda p: p.with_effects(vibration_null_shift={"enabled": True, "gain": 1e-4})),
+    ("load_mass", lambda p: p.updated("surface", mass=22.5)),
+    ("controller_gain", lambda p: p.updated("controller", kp=p.controller.kp * 1.15)),
+    ("velocity_feedback", lambda p: p.updated("controller", gas=p.controller.gas * 1.3)),
 )
 FAULT_SETS = (Faults(0.0, 0.0, 0.0), Faults(0.4, 0.5, 0.0), Faults(0.3, 0.4, 0.3))
 
