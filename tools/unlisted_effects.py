@@ -111,10 +111,10 @@ def coloured_position_noise(r, sd=8e-6, f_hz=5.0):
 
 
 def more_noise(r, k=3.0):
-    """White noise ``k`` x the default sensor noise added on every channel (4x its power in all)."""
-    rng = np.random.default_rng(10)
-    for c, sd in (("position", 5e-6), ("velocity", 2e-4), ("pressure", 2e4), ("current", 2e-6)):
-        setattr(r, c, getattr(r, c) + rng.normal(0.0, k * sd, len(r.t)))
+    """White noise ``k`` x the default sensor noise (params.yaml) added on every channel (4x its power in all)."""
+    rng, sn = np.random.default_rng(10), load("reference").effects.sensor_noise
+    for c in ("position", "velocity", "pressure", "current"):
+        setattr(r, c, getattr(r, c) + rng.normal(0.0, k * getattr(sn, c), len(r.t)))
     return r
 
 

@@ -230,10 +230,20 @@ def fault_error_sd(res: dict, current: dict[str, float] | None = None) -> dict[s
     return out
 
 
+#: Where the ``fault_error_sd`` block (its comment first) begins in data/discrepancy.yaml.
+FAULT_ERROR_MARK = "# fault_error_sd:"
+
+
+def with_fault_error_block(text: str, old: str) -> str:
+    """``text`` (a settings file written by ``bench floor``) with the ``fault_error_sd`` block of
+    ``old`` (the file it replaces) kept: that block is measured by ``bench discrepancy``."""
+    return text + FAULT_ERROR_MARK + old.split(FAULT_ERROR_MARK, 1)[1] if FAULT_ERROR_MARK in old else text
+
+
 def fault_error_yaml(text: str, sd: dict[str, float], command: str, n_cases: int) -> str:
     """``text`` (data/discrepancy.yaml) with its ``fault_error_sd`` block replaced by ``sd``."""
-    keep = text.split("# fault_error_sd:")[0].rstrip("\n")
-    lines = ["# fault_error_sd: 1 sd per fault coefficient added in quadrature to the loop's stated error",
+    keep = text.split(FAULT_ERROR_MARK)[0].rstrip("\n")
+    lines = [FAULT_ERROR_MARK + " 1 sd per fault coefficient added in quadrature to the loop's stated error",
              "#        once an effect is in the model (its fits err more than the whole-test fit whose",
              f"#        measured terms the error already holds): RMS of error / error = 1 over the {n_cases}",
              "#        bench cases whose effects were all found. Made by:",

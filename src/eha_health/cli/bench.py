@@ -23,6 +23,7 @@ def bench_graph(args) -> int:
 
 
 def bench_floor(args) -> int:
+    from ..bench.discrepancy import with_fault_error_block
     from ..bench.floor import effect_floor, floor_yaml, residual_floor
     from ..discrepancy.settings import Settings
     prog = progress(args)
@@ -33,9 +34,7 @@ def bench_floor(args) -> int:
         text = floor_yaml(res, "eha-health " + " ".join(args.raw),
                           {"held_out_ratio": st.held_out_ratio, "fit_ratio": st.fit_ratio}, eff)
         old = Path(args.write).read_text() if Path(args.write).exists() else ""
-        if "# fault_error_sd:" in old:           # measured by bench discrepancy: kept
-            text += "# fault_error_sd:" + old.split("# fault_error_sd:", 1)[1]
-        Path(args.write).write_text(text)
+        Path(args.write).write_text(with_fault_error_block(text, old))
     print(json.dumps({**res, "effects": eff}, indent=2))
     return 0
 

@@ -88,17 +88,12 @@ class Residual:
             d = np.add.reduceat(d, self._starts, axis=1) * self._block[None]
         return d
 
-    def residuals(self, outs: np.ndarray) -> np.ndarray:
-        """The residual vectors of a batch of outputs ``[B, n, N_OUT]``: ``[B, m]``."""
-        d = self._batch(outs)
-        return d.reshape(len(d), -1)
-
     def costs(self, outs: np.ndarray) -> np.ndarray:
         """Squared norms for a batch of outputs ``[B, n, N_OUT]``."""
         return self.costs_and_residuals(outs)[0]
 
     def costs_and_residuals(self, outs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`costs` and :meth:`residuals` of one batch, from one pass over it."""
+        """:meth:`costs` and the residual vectors ``[B, m]`` of one batch, from one pass over it."""
         d = self._batch(outs)
         return np.einsum("bnc,bnc->b", d, d), d.reshape(len(d), -1)
 
