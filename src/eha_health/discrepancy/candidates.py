@@ -27,6 +27,7 @@ vibration_null_shift   null bias k <|a|> + b0 (shift under vibration)     A s^2/
 load_mass              change of the load's (surface's) mass              kg
 controller_gain        relative error e of the position gain: kp (1+e)    -
 velocity_feedback      relative error e of the velocity feedback gain     -
+valve_response         slower spool: time constant x (1+a), rate /(1+a)   -
 =====================  =================================================  ============
 
 These act *in the loop* (the controller sees them; they move the actuator). The
@@ -71,6 +72,9 @@ class Candidate:
     channel: str | None = None
     #: (knob, simpler candidate): with ``knob`` at its off value this candidate *is* the simpler one
     nests: tuple[tuple[str, str], ...] = ()
+    #: candidates that share part of its physics, so that a record may not tell them apart: when
+    #: either ranks first, the other is refitted too and the report says if they are equally supported
+    overlaps: tuple[str, ...] = ()
 
     @property
     def recorded(self) -> tuple[str, ...]:
@@ -122,6 +126,18 @@ def _stribeck(p: ModelParams, v: float) -> ModelParams:
 
 def _vibration(p: ModelParams, gain: float) -> ModelParams:
     return p.with_effects(vibration_null_shift={"enabled": gain != 0.0, "gain": gain})
+
+
+def _spool(p: ModelParams, a: float) -> ModelParams:
+    """Spool speed: the spool end area A_s (or the pilot flow) off by (1 + a).
+
+    The spool moves at v_s = Q_pilot / A_s: its position-loop time constant goes as A_s and its
+    rate limit (the saturated pilot flow over A_s) as 1 / A_s, so both move by the one factor
+    (the reference's flapper-nozzle stage; a worn or clogged pilot stage, a larger valve).
+    """
+    fs, k = p.first_stage, max(1.0 + a, 1e-3)
+    return p.updated("first_stage", spool_time_constant=fs.spool_time_constant * k,
+                     spool_rate_limit=fs.spool_rate_limit / k)
 
 
 def _mount(p: ModelParams, c: float) -> ModelParams:
@@ -193,7 +209,17 @@ CANDIDATES: tuple[Candidate, ...] = (
               "i = kp (x_c - x) - gas (1 + e) v",
               (Knob("velocity_gain_error", "-", -0.9, 2.0, 0.1, 0.0,
                     lambda p, v: p.updated("controller", gas=p.controller.gas * (1.0 + v)),
-                    doc="controller.gas x (1 + e)"),)),
+                    doc="controller.gas x (1 + e)"),),
+              # kp (1 + e) is the loop gain (K_GM's direction) x a velocity feedback gas / (1 + e):
+              # with K_GM free, only the current's saturation tells the two apart
+              overlaps=("controller_gain",)),
+    Candidate("valve_response", "slower (or faster) servovalve spool: its time constant x (1 + a) and its rate "
+              "limit / (1 + a) (spool end area, clogged pilot stage)",
+              (Knob("valve_slowdown", "-", -0.6, 3.0, 0.2, 0.0, _spool,
+                    doc="first_stage.spool_time_constant x (1 + a), spool_rate_limit / (1 + a)"),),
+              # a supply sag slows the spool as well (its pilot flow): the two differ by the sagged
+              # supply's pressure limit only, which an FDI test reaches only under a high load
+              overlaps=("supply_pressure",)),
 )
 
 @dataclass(frozen=True)
@@ -297,3 +323,9 @@ IN_LOOP_CANDIDATES = CANDIDATES
 RECORDING = recording_candidates()
 CANDIDATES = IN_LOOP_CANDIDATES + RECORDING
 BY_NAME = {c.name: c for c in CANDIDATES}
+
+
+def overlapping(name: str, candidates) -> tuple[str, ...]:
+    """The candidates of ``candidates`` that overlap ``name`` (:attr:`Candidate.overlaps`, either way)."""
+    mine = next((c.overlaps for c in candidates if c.name == name), ())
+    return tuple(c.name for c in candidates if c.name in mine or name in c.overlaps)

@@ -31,7 +31,7 @@ from ..identification.result import FitResult
 from ..identification.uncertainty import autocorr_inflation
 from ..signals.frequency import ResponseError
 from ..signals.kinematics import Kinematics
-from .candidates import IN_LOOP, RECORDING_CHAIN, Candidate
+from .candidates import IN_LOOP, RECORDING_CHAIN, Candidate, overlapping
 from .report import CandidateEvidence
 from .settings import Settings
 
@@ -523,10 +523,15 @@ def retry_pruned(rnd: Round, results: list[Result], candidates, anchors: list[np
     Their screen ran from the base knobs identified without them, and an in-loop effect can move
     the fit to another basin where that screen sees nothing (measured: oil at 0.8 GPa with faults
     (0.3, 0.4, 0.3), diagnosed K_BKL 0.012 and K_FSJ 0.24 without it; compressibility screened at
-    fit x0.976, seventh by dIC, and the verdict was "unexplained"). Returns the results (unsorted)
-    and the model runs spent."""
+    fit x0.976, seventh by dIC, and the verdict was "unexplained"). A candidate that overlaps a
+    refitted one (:attr:`~.candidates.Candidate.overlaps`: shared physics) is not retried: its
+    partner's retry, run before, asked the same question (measured: valve_response, third by its
+    screen, took the fourth retry from compressibility in that case once supply_pressure had been
+    retried). Returns the results (unsorted) and the model runs spent."""
     kind = {c.name: c.kind for c in candidates}
-    pruned = [i for i, r in enumerate(results) if not r.evidence.refit and kind[r.evidence.name] != RECORDING_CHAIN]
+    tried = {r.evidence.name for r in results if r.evidence.refit}
+    pruned = [i for i, r in enumerate(results) if not r.evidence.refit and kind[r.evidence.name] != RECORDING_CHAIN
+              and not tried & set(overlapping(r.evidence.name, candidates))]
     order = sorted(pruned, key=lambda i: results[i].evidence.fit_ratio)[:rnd.settings.pruned_retries]
     return _retry_in_batches(rnd, results, order, candidates, anchors, n_base, rediagnose, say,
                              lambda ev: rnd.passes(ev, structured))

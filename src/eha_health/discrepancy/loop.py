@@ -59,11 +59,11 @@ from ..signals.datachecks import check_channel
 from ..signals.frequency import ResponseError, response_errors
 from ..signals.kinematics import kinematics
 from ..signals.residuals import ResidualAnalysis, analyse, rest_noise_level
-from .candidates import CANDIDATES, Candidate, corrected
+from .candidates import CANDIDATES, Candidate, corrected, overlapping
 from .evidence import (FREQUENCY, Result, Round, evaluate, prefer_consistent, prefer_simpler, rank, rediagnosed, rescan, retry_from_rediagnosis,
                        retry_pruned, screen, screened, sparse_order)
 from .structure import locate
-from .report import NO_MISSING_EFFECT, UNEXPLAINED, DiscrepancyReport, State
+from .report import EQUIVALENT_DIC, NO_MISSING_EFFECT, UNEXPLAINED, DiscrepancyReport, State
 from .settings import Settings, fdi_settings
 
 
@@ -250,6 +250,7 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
         if not passes(top.evidence):
             break
         top.evidence.selected = True
+        _equally_supported(top, results[1:], passes, model.knobs[:len(before.x)])
         selected.append(top.evidence.name)
         model, base, out_base = top.model, top.fit, top.fit.output
         runs -= model.runs       # counted above; the model goes on counting from here
@@ -258,6 +259,25 @@ def _attribute(split: _Split, model: KnobModel, before: FitResult, base: FitResu
         time_structured = res.structured
         say(f"selected {top.evidence.name}; residual now {res.verdict} ({runs + model.runs} model runs)")
     return model, base, out_base, selected, evidence, runs, frequency
+
+
+def _equally_supported(top: Result, others: list[Result], passes, base_knobs) -> None:
+    """Marks the candidates the round's data support as well as the selected ``top`` (the same
+    gates passed, dIC within :data:`~.report.EQUIVALENT_DIC`): the selection names the first, the
+    report says it is not the only explanation, and each alternative's note gives the base knobs
+    (the fault coefficients) it was fitted with, so a reader sees whether the choice matters."""
+    sel = top.evidence
+    for r in others:
+        ev = r.evidence
+        if ev.delta_ic - sel.delta_ic > EQUIVALENT_DIC or not passes(ev):
+            continue
+        sel.equivalent.append(ev.name)
+        base = ", ".join(f"{k.name} {v:.3f}" for k, v in zip(base_knobs, r.fit.x))
+        ours = ", ".join(f"{k.name} {v:.3f}" for k, v in zip(base_knobs, top.fit.x))
+        ev.note = ((ev.note + "; ") if ev.note else "") + \
+            (f"as well supported as the selected {sel.name} (dIC {ev.delta_ic - sel.delta_ic:+.1f}, within "
+             f"{EQUIVALENT_DIC:g}): the record does not tell them apart; fitted with {base} "
+             f"({sel.name}: {ours})" + ("" if ev.refit else ", at its screened point"))
 
 
 def _round(rnd: Round, remaining: list[Candidate], anchors, say) -> list[Result]:
@@ -318,6 +338,16 @@ def _round(rnd: Round, remaining: list[Candidate], anchors, say) -> list[Result]
         # refitted model can become the next round's base)
         results[0] = refit(results[0].evidence.name, "ranked first after screening")
         results.sort(key=rank)
+    # the first one's overlapping candidates (shared physics): judged on a refit too, or the
+    # screen's coarse point decides between two explanations the record may support alike
+    # (measured: a supply at 14 MPa, faults 0: the slower spool refitted and ranked first, the
+    # supply pruned at its scan's fit x0.49; refitted, dIC 2.0 better)
+    top = results[0].evidence.name
+    for name in overlapping(top, remaining):
+        j = next(i for i, r in enumerate(results) if r.evidence.name == name)
+        if not results[j].evidence.refit:
+            results[j] = refit(name, f"overlaps {top}")
+    results.sort(key=rank)
     by_name = {c.name: c for c in remaining}
     ranked = prefer_simpler(rnd, results, by_name.__getitem__, lambda n: refit(n, "nested in the first"))
     return prefer_consistent(rnd, ranked, lambda n: refit(n, "kinematic evidence"))
@@ -422,6 +452,9 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     bound = _on_bounds(model, after.x, len(base_knobs)) if selected else []
     verdict = ("model lacks: " + ", ".join(selected)) if selected else \
         UNEXPLAINED if res_before.structured else NO_MISSING_EFFECT
+    alike = [f"{e.name} or {', '.join(e.equivalent)}" for e in evidence if e.selected and e.equivalent]
+    if alike:
+        verdict += " (" + "; ".join(alike) + ": as well supported, the record does not tell them apart)"
     if bound:
         verdict += " (" + "; ".join(f"{k.name} on its bound {v:.4g}" for k, v in bound) + \
             ": the effect is beyond the candidate's range, the coefficients with it are not to be trusted)"

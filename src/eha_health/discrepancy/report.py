@@ -14,6 +14,12 @@ NO_MISSING_EFFECT = "no significant missing effect"
 #: library does not hold (or that its time-domain refit cannot match, e.g. a limit cycle's phase), and
 #: the coefficients fitted without it may be biased.
 UNEXPLAINED = "structured residual that no candidate effect explains"
+#: Two candidates whose held-out information criteria differ by no more than this are reported as
+#: equally supported (Burnham & Anderson 2002, section 2.6: a difference below 2 is no evidence for
+#: either). Measured: a supply sag and a slower spool (their pilot-flow physics is one signature where
+#: the sagged supply does not limit the pressure) 0.2 and 1.5 apart; a slower spool and a feedback
+#: delay 83 and 150 apart.
+EQUIVALENT_DIC = 2.0
 
 
 @dataclass
@@ -40,6 +46,9 @@ class CandidateEvidence:
     frequency_ratio: float | None = None  # rig records: held-out position/command response error power, with / without it
     kinematic_ratio: float | None = None  # a velocity recording effect: mismatch of the recorded velocity and the
                                           # recorded position's derivative, with / without it (signals.kinematics)
+    # a selected effect: the other candidates of its round the data support as well (they pass the
+    # same gates, dIC within EQUIVALENT_DIC): the record cannot tell them apart
+    equivalent: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -98,8 +107,11 @@ class DiscrepancyReport:
 
 def format_report(rep: DiscrepancyReport, what: str = "") -> str:
     """Readable summary: verdict, before/after per channel and coefficients, ranked candidates."""
-    lines = [f"discrepancy analysis{' of ' + what if what else ''}: {rep.verdict}",
-             f"  residual before: {rep.residual_before.verdict}"]
+    lines = [f"discrepancy analysis{' of ' + what if what else ''}: {rep.verdict}"]
+    lines += [f"  {c.name} is not the only explanation: {', '.join(c.equivalent)} explain(s) the record as well "
+              f"(dIC within {EQUIVALENT_DIC:g}, the same gates passed); the notes below give the faults with each"
+              for c in rep.candidates if c.selected and c.equivalent]
+    lines.append(f"  residual before: {rep.residual_before.verdict}")
     lines += [f"    {e}" for e in rep.residual_before.evidence[:4]]
     lines.append(f"  {'channel':9s} {'RMS before':>14s} {'RMS after':>14s} {'held-out before':>16s} {'held-out after':>15s}")
     for c in rep.before.rms:

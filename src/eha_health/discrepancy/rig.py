@@ -36,10 +36,11 @@ RIG_KNOBS = (
 )
 
 #: Candidates that make sense without the aerodynamic surface and its link, or for a loop whose
-#: gain is calibrated (RIG_KNOBS) and which has no velocity feedback, and the loop structure a
-#: rig's frequency response may ask for (candidates.STRUCTURAL).
+#: gain and spool time constant are calibrated (RIG_KNOBS) and which has no velocity feedback, and
+#: the loop structure a rig's frequency response may ask for (candidates.STRUCTURAL).
 RIG_CANDIDATES = tuple(c for c in CANDIDATES if c.name not in ("load_stiffness", "mount_compliance",
-                                                             "controller_gain", "velocity_feedback")) + STRUCTURAL
+                                                             "controller_gain", "velocity_feedback",
+                                                             "valve_response")) + STRUCTURAL
 
 
 def rig_params(base: ModelParams | None = None, dt: float = 1e-4) -> ModelParams:
