@@ -16,9 +16,9 @@ NO_MISSING_EFFECT = "no significant missing effect"
 UNEXPLAINED = "structured residual that no candidate effect explains"
 #: Two candidates whose held-out information criteria differ by no more than this are reported as
 #: equally supported (Burnham & Anderson 2002, section 2.6: a difference below 2 is no evidence for
-#: either). Measured: a supply sag and a slower spool (their pilot-flow physics is one signature where
-#: the sagged supply does not limit the pressure) 0.2 and 1.5 apart; a slower spool and a feedback
-#: delay 83 and 150 apart.
+#: either). Measured on the bench's spool and supply cases: a supply sag and a slower spool (their
+#: pilot-flow physics is one signature where the sagged supply does not limit the pressure) 0.0-2.0
+#: apart; a slower spool and a feedback delay 240-640 apart.
 EQUIVALENT_DIC = 2.0
 
 
