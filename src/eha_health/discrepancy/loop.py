@@ -267,13 +267,13 @@ def _equally_supported(top: Result, others: list[Result], passes, base_knobs) ->
     report says it is not the only explanation, and each alternative's note gives the base knobs
     (the fault coefficients) it was fitted with, so a reader sees whether the choice matters."""
     sel = top.evidence
+    ours = ", ".join(f"{k.name} {v:.3f}" for k, v in zip(base_knobs, top.fit.x))
     for r in others:
         ev = r.evidence
         if ev.delta_ic - sel.delta_ic > EQUIVALENT_DIC or not passes(ev):
             continue
         sel.equivalent.append(ev.name)
         base = ", ".join(f"{k.name} {v:.3f}" for k, v in zip(base_knobs, r.fit.x))
-        ours = ", ".join(f"{k.name} {v:.3f}" for k, v in zip(base_knobs, top.fit.x))
         ev.note = ((ev.note + "; ") if ev.note else "") + \
             (f"as well supported as the selected {sel.name} (dIC {ev.delta_ic - sel.delta_ic:+.1f}, within "
              f"{EQUIVALENT_DIC:g}): the record does not tell them apart; fitted with {base} "

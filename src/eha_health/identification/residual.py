@@ -62,16 +62,9 @@ class Residual:
             counts = np.diff(np.append(self._starts, self.n))
             self._block = (1.0 / np.sqrt(counts))[:, None]
 
-    def _diff(self, out: np.ndarray) -> np.ndarray:
-        o = out if self._whole else out[self.mask]
-        return (o[:, self.cols] - self.y) * self._W
-
     def __call__(self, out: np.ndarray) -> np.ndarray:
         """The residual vector of one output ``[n, N_OUT]`` (sample-major, channels inner)."""
-        d = self._diff(out)
-        if self._starts is not None:
-            d = np.add.reduceat(d, self._starts, axis=0) * self._block
-        return d.ravel()
+        return self._batch(out[None]).ravel()
 
     def cost(self, out: np.ndarray) -> float:
         """Squared norm of the residual of one output."""
@@ -79,6 +72,8 @@ class Residual:
         return float(r @ r)
 
     def _batch(self, outs: np.ndarray) -> np.ndarray:
+        """Weighted (block-summed) differences ``[B, n', channels]`` of a batch of outputs: the one
+        place the residual's arithmetic lives (one output is a batch of one)."""
         # (the channels' columns first: a masked copy of every output column was most of the time)
         o = outs[:, :, self.cols]
         if not self._whole:
