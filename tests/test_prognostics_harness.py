@@ -4,8 +4,8 @@ import json
 import numpy as np
 
 from eha_health.prognostics.config import load_settings
-from eha_health.bench.rul import (FINE_DT_H, MARK_BEGIN, MARK_END, bench_rul, diagnose_test, format_result, make_fleet,
-                                  write_markdown)
+from eha_health.bench.rul import (FINE_DT_H, MARK_BEGIN, MARK_END, bench_rul, diagnose_test, format_result, law_cells,
+                                  make_fleet, reference_rul, write_markdown)
 
 THR = {"gm": 0.8, "fsj": 0.9, "bkl": 0.85}
 
@@ -46,6 +46,28 @@ def test_gamma_process_mean_follows_the_law():
     assert abs(np.mean(ratios) - 1.0) < 4 * se
 
 
+def test_reference_predictor_learns_a_known_law_and_follows_the_unit_level():
+    """The bench's reference predictor, told the law, finds a low-volatility unit's RUL from half its
+    history; it continues from the level the unit is at, so the same history ending higher gives a
+    shorter RUL; told every law of the fleet it still finds a linear unit."""
+    b = load_settings(overrides={"bench": {"n_units": 1, "volatility": [1e-5, 1e-5],
+                                           "second_fault_probability": 0.0}}).bench
+    u = make_fleet(b, THR)[0]                      # unit 0: linear
+    p = u.paths[0]
+    u.diag_k, u.diag_std = u.true_k.copy(), np.full(u.true_k.shape, 0.002)
+    k = int(np.searchsorted(u.test_h, p.onset_h + 0.5 * p.life_h))
+    true_rul = u.eol_h - u.test_h[k]
+    known = reference_rul(u, k, THR, [(p.law, p.shape, p.knee)], [p.volatility], b.life_median_h)
+    assert abs(known / true_rul - 1) < 0.05
+    every = [c for law in b.laws for c in law_cells(law)]
+    assert abs(reference_rul(u, k, THR, every, [1e-5, 1e-3], b.life_median_h) / true_rul - 1) < 0.2
+    fi = ["gm", "fsj", "bkl"].index(p.fault)
+    u.diag_k[k, fi] += 0.05                        # the last test higher: less of the way left
+    higher = reference_rul(u, k, THR, [(p.law, p.shape, p.knee)], [p.volatility], b.life_median_h)
+    slope = THR[p.fault] / p.life_h
+    assert higher < known - 0.5 * 0.05 / slope
+
+
 def test_diagnoses_are_real_and_cached(tmp_path):
     k = np.array([0.3, 0.0, 0.2])
     d1 = diagnose_test(k, 123, "deterministic", tmp_path)
@@ -74,7 +96,8 @@ def test_bench_end_to_end_tiny(tmp_path):
     r2 = bench_rul(s, cache_dir=tmp_path / "cache", plot=None, progress=None)
     assert r2["diagnoses"]["cached"] == r2["diagnoses"]["diagnoses"]
     assert r2["model"] == r["model"] and r2["naive"] == r["naive"]
-    assert set(r["oracle"]) == {"alpha_lambda", "law_and_shape_known", "law_known"}
+    assert set(r["oracle"]) == {"alpha_lambda", "law_and_shape_known", "law_known", "fleet_laws_known",
+                                "generic_shapes"}
     # the figures go between the markers of a document, the rest of it kept
     doc = tmp_path / "doc.md"
     doc.write_text(f"# title\n{MARK_BEGIN}\nold figures\n{MARK_END}\ntail\n")

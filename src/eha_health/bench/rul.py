@@ -40,6 +40,10 @@ from ..prognostics.config import BenchSettings, Settings, load_settings
 from ..prognostics.thresholds import FAULTS, threshold_values
 
 FINE_DT_H = 1.0   # h, grid of the simulated gamma process
+#: Shape parameter range of each law (exponential beta, power p, two-phase slope ratio), drawn
+#: uniformly per unit, and the two-phase knee range (fraction of the life).
+SHAPE_RANGES = {"linear": (1.0, 1.0), "exponential": (1.5, 3.0), "power": (1.5, 2.5), "two_phase": (2.0, 3.0)}
+KNEE_RANGE = (0.4, 0.6)
 
 
 @dataclass
@@ -89,9 +93,10 @@ def _mean_shape(law: str, x: np.ndarray, shape: float, knee: float) -> np.ndarra
 
 def _fault_path(rng: np.random.Generator, fault: str, law: str, life: float, onset: float, thr: float,
                 nu: float, horizon: float) -> FaultPath:
-    shape = {"linear": 1.0, "exponential": rng.uniform(1.5, 3.0), "power": rng.uniform(1.5, 2.5),
-             "two_phase": rng.uniform(2.0, 3.0)}[law]
-    knee = rng.uniform(0.4, 0.6) if law == "two_phase" else float("nan")
+    # every law's draw is made, whichever the law, so that the fleet's random stream does not depend on it
+    draws = {name: (lo if lo == hi else rng.uniform(lo, hi)) for name, (lo, hi) in SHAPE_RANGES.items()}
+    shape = draws[law]
+    knee = rng.uniform(*KNEE_RANGE) if law == "two_phase" else float("nan")
     t = np.arange(0.0, horizon + FINE_DT_H, FINE_DT_H)
     mu = thr * _mean_shape(law, (t - onset) / life, shape, knee)
     dmu = np.diff(mu)
@@ -243,35 +248,82 @@ def oracle_rul(u: Unit, t_h: float, thr: dict[str, float], n_paths: int = 400, s
     return best
 
 
-def law_known_rul(u: Unit, k: int, thr: dict[str, float], shape_known: bool, life_median_h: float) -> float:
-    """Median RUL [h] at test ``k`` of a predictor that knows the law of the unit's failing fault (and
-    its shape parameter if ``shape_known``, else the middle of the fleet's range) and its volatility,
-    and fits onset and life to the unit's own diagnoses up to test ``k``: a grid posterior on
-    (onset, L) under K ~ N(thr h((t - onset)/L), std^2 + nu mu), L log-uniform over 0.1 to 10 fleet
-    median lives; RUL = onset + L - t_k (mean path).
-    It bounds what learning the life from a unit's own partial history can give once its law is known."""
+def law_cells(law: str, n: int = 5) -> list[tuple[str, float, float]]:
+    """(law, shape, knee) cells spanning the fleet's range of a law (:data:`SHAPE_RANGES`; two-phase:
+    3 slope ratios x 3 knees)."""
+    lo, hi = SHAPE_RANGES[law]
+    if law == "linear":
+        return [(law, 1.0, float("nan"))]
+    if law == "two_phase":
+        return [(law, float(v), float(kn)) for v in np.linspace(lo, hi, 3) for kn in np.linspace(*KNEE_RANGE, 3)]
+    return [(law, float(v), float("nan")) for v in np.linspace(lo, hi, n)]
+
+
+def reference_rul(u: Unit, k: int, thr: dict[str, float], cells: list[tuple[str, float, float]],
+                  volatilities: list[float], life_median_h: float) -> float:
+    """Median RUL [h] at test ``k`` of a Bayesian predictor that is told which fault fails, and which
+    (law, shape, knee) ``cells`` and gamma-process ``volatilities`` nu the truth is among (equally
+    likely a priori), and learns the onset and the life L from the unit's own diagnoses up to test k.
+
+    Grid posterior over (cell, nu, onset uniform on [0, t_k], L log-uniform over 0.1 to 10 fleet
+    median lives). Likelihood: the gamma process's independent increments, taken Gaussian,
+    dK_j ~ N(dmu_j, nu dmu_j + s_j^2 + s_{j-1}^2), mu = thr h((t - onset)/L), and the first point
+    K_0 ~ N(mu_0, nu mu_0 + s_0^2). RUL of a cell: the mean path continued from the last diagnosed
+    K (the level the unit is at, not the one its mean path would be at) to the threshold,
+    h(x_c) = h(x_k) + (thr - K_k) / thr, RUL = onset + x_c L - t_k.
+    With one cell and the true nu it is what learning a known law's onset and life from a unit's
+    partial history can give; with every law of the fleet, what knowing the fleet's family of laws
+    (but not the unit's) can give."""
     p = next(q for q in u.paths if q.fault == u.eol_fault)
     fi = FAULTS.index(p.fault)
-    t, kk, sd = u.test_h[:k + 1], u.diag_k[:k + 1, fi], u.diag_std[:k + 1, fi]
-    life = np.geomspace(0.1 * life_median_h, 10 * life_median_h, 300)[:, None, None]
-    onset = np.linspace(0.0, t[-1], 150)[None, :, None]
-    shape, knee = (p.shape, p.knee) if shape_known else (
-        {"linear": 1.0, "exponential": 2.25, "power": 2.0, "two_phase": 2.5}[p.law], 0.5)
-    mu = thr[p.fault] * _mean_shape(p.law, (t - onset) / life, shape, knee)
-    var = sd ** 2 + p.volatility * np.maximum(mu, 1e-9)
-    ll = -0.5 * np.sum((kk - mu) ** 2 / var + np.log(var), -1)
-    w = np.exp(ll - ll.max()).ravel()
-    rul = ((onset + life)[..., 0] - t[-1]).ravel()
+    T = thr[p.fault]
+    t, y, sd = u.test_h[:k + 1], u.diag_k[:k + 1, fi], u.diag_std[:k + 1, fi]
+    life = np.geomspace(0.1 * life_median_h, 10 * life_median_h, 200)[:, None, None]
+    onset = np.linspace(0.0, t[-1], 80)[None, :, None]
+    xs = np.linspace(0.0, 30.0, 30001)          # fractions of life on which h is inverted
+    lls, ruls = [], []
+    for law, shape, knee in cells:
+        mu = T * _mean_shape(law, (t - onset) / life, shape, knee)            # [L, onset, n]
+        dmu = np.diff(mu, axis=-1)
+        hs = _mean_shape(law, xs, shape, knee)
+        x_now = (t[-1] - onset) / life
+        target = np.minimum(_mean_shape(law, x_now, shape, knee) + (T - y[-1]) / T, hs[-1])
+        x_c = np.maximum(np.interp(target, hs, xs), x_now)
+        rul = (onset + x_c * life - t[-1])[..., 0].ravel()
+        for nu in volatilities:
+            var = nu * np.maximum(dmu, 1e-12) + sd[1:] ** 2 + sd[:-1] ** 2
+            ll = -0.5 * np.sum((np.diff(y) - dmu) ** 2 / var + np.log(var), -1)
+            v0 = nu * np.maximum(mu[..., 0], 1e-12) + sd[0] ** 2
+            ll = ll - 0.5 * ((y[0] - mu[..., 0]) ** 2 / v0 + np.log(v0))
+            lls.append(ll.ravel())
+            ruls.append(rul)
+    ll, rul = np.concatenate(lls), np.concatenate(ruls)
+    w = np.exp(ll - ll.max())
     o = np.argsort(rul)
     return float(rul[o][np.searchsorted(np.cumsum(w[o]) / w.sum(), 0.5)])
 
 
-def law_known_alpha_lambda(units: list[Unit], scores: list["UnitScore"], thr: dict[str, float],
+#: The reference predictors of the bench table: what each is told (besides the failing fault).
+REFERENCES = {
+    "law_and_shape_known": "law, its shape parameter and the volatility known",
+    "law_known": "law known, its shape parameter and the volatility within the fleet's ranges",
+    "fleet_laws_known": "the fleet's four laws and their ranges known, not which one the unit follows",
+    "generic_shapes": "no law known: a generic library of power (p 0.3-4, linear included) and exponential "
+                      "(beta 0.5-6) shapes",
+}
+#: The generic library of the last reference: what a learner without the fleet's laws might use.
+GENERIC_CELLS = ([("power", p, float("nan")) for p in (0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0, 4.0)]
+                 + [("exponential", beta, float("nan")) for beta in (0.5, 1.0, 2.0, 4.0, 6.0)])
+
+
+def reference_alpha_lambda(units: list[Unit], scores: list["UnitScore"], thr: dict[str, float],
                            b: BenchSettings) -> dict:
-    """alpha-lambda of :func:`law_known_rul` (shape known, and shape at mid-range) at the scored points."""
+    """alpha-lambda of the :data:`REFERENCES` predictors (:func:`reference_rul`) at the scored points."""
     from ..prognostics import metrics as M
+    nus = list(np.geomspace(b.volatility[0], b.volatility[1], 4))
+    every_law = [c for law in b.laws for c in law_cells(law)]
     out = {}
-    for key, known in (("law_and_shape_known", True), ("law_known", False)):
+    for key in REFERENCES:
         out[key] = {}
         for lam in b.lambdas:
             res = []
@@ -279,8 +331,13 @@ def law_known_alpha_lambda(units: list[Unit], scores: list["UnitScore"], thr: di
                 tl = sc.t_h[0] + lam * (sc.eol_h - sc.t_h[0])
                 i = int(np.nonzero(sc.t_h <= tl)[0][-1])
                 k = int(np.searchsorted(u.test_h, sc.t_h[i]))
+                p = next(q for q in u.paths if q.fault == u.eol_fault)
+                cells, vols = {"law_and_shape_known": ([(p.law, p.shape, p.knee)], [p.volatility]),
+                               "law_known": (law_cells(p.law), nus),
+                               "fleet_laws_known": (every_law, nus),
+                               "generic_shapes": (GENERIC_CELLS, nus)}[key]
                 r = np.full(len(sc.t_h), np.nan)
-                r[i] = law_known_rul(u, k, thr, known, b.life_median_h)
+                r[i] = reference_rul(u, k, thr, cells, vols, b.life_median_h)
                 res.append(M.alpha_lambda(sc.t_h[:i + 1], r[:i + 1], sc.eol_h, b.alpha, lam))
             res = [v for v in res if v is not None]
             out[key][str(lam)] = {"fraction": float(np.mean(res)) if res else float("nan"),
@@ -485,7 +542,7 @@ def bench_rul(settings: Settings | None = None, cache_dir: str | Path = "out/rul
     scores = _predict_unit_points(units, s, thr)
     result = score_fleet(scores, s.bench)
     result["oracle"] = {"alpha_lambda": oracle_alpha_lambda(units, scores, thr, s.bench),
-                        **law_known_alpha_lambda(units, scores, thr, s.bench)}
+                        **reference_alpha_lambda(units, scores, thr, s.bench)}
     result["thresholds"] = thr
     result["diagnoses"] = diag
     result["prediction_wall_time_s"] = time.perf_counter() - t1
@@ -514,12 +571,11 @@ def format_result(r: dict) -> str:
         lines.append("| alpha-lambda of an oracle knowing each unit's law, life and volatility (lambda "
                      + " / ".join(o) + ") | " + " / ".join(f"{v['fraction']:.0%}" for v in o.values())
                      + " | - | - |")
-        for key, label in (("law_and_shape_known", "law and its shape parameter known, onset and life fitted to the "
-                                                   "unit's own diagnoses"),
-                           ("law_known", "law known (shape at mid-range), onset and life fitted")):
+        for key, label in REFERENCES.items():
             if key in r["oracle"]:
                 o = r["oracle"][key]
-                lines.append(f"| alpha-lambda of a predictor with the {label} (lambda " + " / ".join(o) + ") | "
+                lines.append(f"| alpha-lambda of a Bayesian predictor, {label}, onset and life learnt from the "
+                             "unit's diagnoses (lambda " + " / ".join(o) + ") | "
                              + " / ".join(f"{v['fraction']:.0%}" for v in o.values()) + " | - | - |")
     for key, label in (("ph_fraction_median", "prognostic horizon / life, median (first entry)"),
                        ("ph_stay_fraction_median", "prognostic horizon / life, median (stays in band)"),
