@@ -18,6 +18,7 @@ three candidates, the data checks, the largest fault-coefficient error before ->
 loop's time (or the error that refused the record before any fit). The figures of docs/discrepancy.md ("Alterations the bench does not list") come
 from this script.
 """
+import copy
 import sys
 
 import numpy as np
@@ -134,6 +135,12 @@ def inverted_velocity(r):
     return r
 
 
+def _on_a_copy(alter):
+    """``alter`` applied to a copy: the functions above set the channels of the response they are
+    given, and a caller reusing one simulated run across alterations would get them stacked."""
+    return lambda r: alter(copy.deepcopy(r))
+
+
 ALTERED = {
     "position drift 30 um/s": lambda r: drifting(r, "position", 30e-6),
     "every channel 3 ms late": lambda r: all_late(r, 3e-3),
@@ -164,6 +171,7 @@ ALTERED = {
     "current recorded in mA": current_in_ma,
     "velocity sign inverted": inverted_velocity,
 }
+ALTERED = {name: _on_a_copy(alter) for name, alter in ALTERED.items()}
 PLANT = {
     "valve flow gain -10 %": lambda p: p.updated("hydraulics", flow_gain=p.hydraulics.flow_gain * 0.9),
     "jack area +5 %": lambda p: p.updated("jack", area=p.jack.area * 1.05),
