@@ -9,6 +9,7 @@ import pytest
 
 from eha_health import Faults, simulate
 from eha_health.identification.diagnose import diagnose
+from eha_health.physics.params import load
 from eha_health.signals.response import CSV_COLUMNS
 
 BIN = Path(sys.executable).parent / "eha-health"
@@ -28,6 +29,31 @@ def test_fast_default_recovers_combined_faults_in_few_runs(combined):
     assert 0 < d.fit_quality <= 4 and d.as_dict()["guard"] == "passed"
     assert d.evaluations <= 60     # the joint least squares from the signature tables' start, plus the error bars
     assert all(v > 0 for v in d.std.values())
+
+
+def test_a_clipped_or_glitched_recording_is_cleaned_before_the_diagnosis_it_would_bias():
+    """A pressure transducer pinned at +-1 MPa on most of the test took K_FSJ to 0.146 for 0.4
+    (measured); cleaned against the first fit, the clipped samples weigh nothing and the diagnosis
+    is the clean record's, the warning naming what was taken out. Without cleaning it stays biased."""
+    truth = (0.3, 0.4, 0.3)
+    noisy = load("reference").with_effect_names(["sensor_noise"])
+    r = simulate(params=noisy, faults=Faults(*truth), seed=777)
+    clean_d = diagnose(r)
+    assert not any(w.startswith("data check") for w in clean_d.warnings)     # nothing to clean on a clean record
+    r.pressure = np.clip(r.pressure, -1e6, 1e6)
+    d = diagnose(r)
+    assert np.abs(np.array(d.faults.as_tuple()) - truth).max() <= 0.02, d.faults
+    assert any(w.startswith("data check: pressure") and "clipped" in w for w in d.warnings), d.warnings
+    assert d.rms["pressure"] < 0.5 * np.sqrt(np.mean((clean_d.fitted.pressure - r.pressure) ** 2))
+    raw = diagnose(r, clean=False)
+    assert abs(raw.faults.k_fsj - 0.4) > 0.1 and not any(w.startswith("data check") for w in raw.warnings)
+    # five one-sample glitches of 1 mm on the position: the same
+    g = simulate(params=noisy, faults=Faults(*truth), seed=777)
+    g.position = g.position.copy()
+    g.position[[400, 900, 1700, 2300, 3100]] += 1e-3
+    dg = diagnose(g)
+    assert np.abs(np.array(dg.faults.as_tuple()) - truth).max() <= 0.02
+    assert any("5 spikes" in w for w in dg.warnings), dg.warnings
 
 
 def test_global_guard_falls_back_from_a_wrong_basin():

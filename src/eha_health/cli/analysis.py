@@ -19,7 +19,7 @@ def cmd_diagnose(args) -> int:
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
     prog = progress(args)
-    d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=prog)
+    d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=prog, clean=not args.no_clean)
     if args.plot:
         from ..plotting import plot_diagnosis
         plot_diagnosis(r, d, args.plot)
@@ -124,6 +124,9 @@ def register(sub) -> None:
                                 json_flag("print one JSON object"), quiet_flag()])
     q.add_argument("run", help="CSV in the simulate format, or an MCAP bag to the docs/interfaces.md contract")
     q.add_argument("--plot", help="PNG: measured vs fitted per channel, and the convergence")
+    q.add_argument("--no-clean", action="store_true",
+                   help="keep the raw fit: do not set aside spikes, clipped or frozen samples and interference "
+                        "found against it (lsq fitness)")
     q.set_defaults(func=cmd_diagnose)
 
     im = sub.add_parser("import", help="measured rig data (delimited text) into the project's format")

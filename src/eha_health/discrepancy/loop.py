@@ -530,7 +530,8 @@ def start_diagnosis(response, seed: int = 0, params: ModelParams | None = None, 
     else :data:`START_METHOD` with ``seed``."""
     if diagnosis is not None and diagnosis.method in WHOLE_TEST_METHODS and diagnosis.fitness == "lsq":
         return diagnosis
-    return diagnose(response, method=START_METHOD, seed=seed, params=params, progress=progress)
+    # (the loop cleans the record itself, against this diagnosis: docs/discrepancy.md)
+    return diagnose(response, method=START_METHOD, seed=seed, params=params, progress=progress, clean=False)
 
 
 def analyse_fdi_test(response, max_effects: int = 2, seed: int = 0, params: ModelParams | None = None,

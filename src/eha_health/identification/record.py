@@ -35,6 +35,9 @@ class Record:
     #: command [m] simulated before t = 0 at the same rate, its outputs not compared: what led
     #: into the test when it did not start at rest (``FDISequence.preamble``); None: from rest
     preroll: np.ndarray | None = None
+    #: channel -> mask of samples with no information about the actuator (spikes, clipped or
+    #: frozen samples: :func:`~eha_health.signals.cleaning.clean`): weight 0 in every residual
+    excluded: dict[str, np.ndarray] = field(default_factory=dict)
 
     @classmethod
     def from_response(cls, r: Response, channels: tuple[str, ...] | None = None) -> "Record":

@@ -49,6 +49,12 @@ class Residual:
         self.w = np.array([wt.get(c, CHANNEL_WEIGHTS[c] / CHANNEL_SCALES[c]) for c in self.channels]) / np.sqrt(self.n)
         self.y = np.column_stack([record.channels[c][self.mask] for c in self.channels])
         self._W = self.w
+        # samples the record marks as carrying no information weigh nothing, whatever the fitness
+        excluded = {c: m for c, m in record.excluded.items() if c in self.channels and np.any(m)}
+        if excluded:
+            sample_factors = dict(sample_factors or {})
+            for c, m in excluded.items():
+                sample_factors[c] = np.asarray(sample_factors.get(c, 1.0), float) * ~np.asarray(m, bool)
         if sample_factors:
             self._W = np.tile(self.w, (self.n, 1))     # [n, channels]
             for c, f in sample_factors.items():
