@@ -208,6 +208,20 @@ def test_cli_diagnose_json(tmp_path, combined):
     assert (tmp_path / "d.png").stat().st_size > 10_000
 
 
+def test_cli_diagnose_names_what_it_cleaned_and_keeps_the_raw_fit_on_request(tmp_path):
+    noisy = load("reference").with_effect_names(["sensor_noise"])
+    r = simulate(params=noisy, faults=Faults(0.3, 0.4, 0.3), seed=777)
+    r.pressure = np.clip(r.pressure, -1e6, 1e6)
+    f = tmp_path / "clipped.csv"
+    r.to_csv(f)
+    cleaned, raw = (_cli("diagnose", str(f), "--json", *extra) for extra in ((), ("--no-clean",)))
+    assert cleaned.returncode == 0 and raw.returncode == 0, cleaned.stderr + raw.stderr
+    c, w = json.loads(cleaned.stdout), json.loads(raw.stdout)
+    assert abs(c["k_fsj"] - 0.4) <= 0.02 and abs(w["k_fsj"] - 0.4) > 0.1
+    assert any(x.startswith("data check: pressure") for x in c["warnings"])
+    assert not any(x.startswith("data check") for x in w["warnings"])
+
+
 def _write(path, t, cols=CSV_COLUMNS, mutate=None):
     r = simulate("reference")
     data = np.column_stack([t if c == "t" else getattr(r, c)[: len(t)] for c in cols])
