@@ -545,7 +545,10 @@ def analyse_fdi_test(response, max_effects: int = 2, seed: int = 0, params: Mode
     def rediagnose(model: KnobModel, x: np.ndarray) -> tuple[np.ndarray, int]:
         # the fast global method: one per refitted candidate, only when a round finds nothing on a
         # structured residual; the model's recording effects are undone on the data it fits
-        d = diagnose(corrected(response, model, x), method="deterministic", params=model.params_at(x)[0])
+        # (clean=False: as before diagnose cleaned; whether the loop's exclusions should reach the
+        # re-identification is not measured yet)
+        d = diagnose(corrected(response, model, x), method="deterministic", params=model.params_at(x)[0],
+                     clean=False)
         return np.array(d.faults.as_tuple()), int(d.evaluations)
 
     return run_loop(record, params, FAULT_KNOBS, np.array(diagnosis.faults.as_tuple()),
