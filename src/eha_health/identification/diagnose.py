@@ -418,7 +418,9 @@ def _identify(response: Response, method: str, fitness: str, seed: int, start: F
         warn.append("an estimate sits on the upper search bound: damage beyond the modelled range")
     fitted = response_from_rows(record.t, out, {"label": "monitor fit"})
     # (on the samples that carry information: a cleaned record's excluded ones are left out)
-    keep = {c: ~record.excluded[c] if c in record.excluded else slice(None) for c in MEASURED}
+    # (a channel excluded whole -- a dead transducer -- is reported over all its samples)
+    keep = {c: ~record.excluded[c] if c in record.excluded and not record.excluded[c].all() else slice(None)
+            for c in MEASURED}
     rms = {c: float(np.sqrt(np.mean((getattr(fitted, c)[keep[c]] - record.channels[c][keep[c]]) ** 2)))
            for c in MEASURED}
     return Diagnosis(faults=Faults(*(float(v) for v in x)), std=dict(zip(FAULT_NAMES, map(float, sd))),
