@@ -56,6 +56,21 @@ def test_a_clipped_or_glitched_recording_is_cleaned_before_the_diagnosis_it_woul
     assert any("5 spikes" in w for w in dg.warnings), dg.warnings
 
 
+def test_a_record_the_model_cannot_fit_is_not_passed_off_as_a_diagnosis():
+    """Every channel on a clock 1 % fast: no coefficients fit it (the global search ran and the fit
+    still leaves ~2000x the floor); the diagnosis says plainly that its coefficients are not to be trusted."""
+    noisy = load("reference").with_effect_names(["sensor_noise"])
+    r = simulate(params=noisy, faults=Faults(0.3, 0.4, 0.3), seed=777)
+    ok = diagnose(r)
+    assert not any("not to be trusted" in w for w in ok.warnings)
+    t = r.t.copy()
+    for c in ("position", "velocity", "pressure", "current"):
+        setattr(r, c, np.interp(t * 1.01, t, getattr(r, c)))
+    d = diagnose(r)
+    assert d.guard == "fired" and d.fit_quality > 4
+    assert any("not to be trusted" in w and "discrepancy" in w for w in d.warnings), d.warnings
+
+
 def test_global_guard_falls_back_from_a_wrong_basin():
     """A start far off in K_GM leaves the fast fit in a wrong basin (measured): the guard
     judges its fit quality, runs the global search and reports it."""
