@@ -262,8 +262,9 @@ def law_cells(law: str, n: int = 5) -> list[tuple[str, float, float]]:
 def reference_rul(u: Unit, k: int, thr: dict[str, float], cells: list[tuple[str, float, float]],
                   volatilities: list[float], life_median_h: float) -> float:
     """Median RUL [h] at test ``k`` of a Bayesian predictor that is told which fault fails, and which
-    (law, shape, knee) ``cells`` and gamma-process ``volatilities`` nu the truth is among (equally
-    likely a priori), and learns the onset and the life L from the unit's own diagnoses up to test k.
+    (law, shape, knee) ``cells`` and gamma-process ``volatilities`` nu the truth is among (each law
+    named in the cells equally likely a priori, its cells alike; the volatilities alike), and learns
+    the onset and the life L from the unit's own diagnoses up to test k.
 
     Grid posterior over (cell, nu, onset uniform on [0, t_k], L log-uniform over 0.1 to 10 fleet
     median lives). Likelihood: the gamma process's independent increments, taken Gaussian,
@@ -281,8 +282,10 @@ def reference_rul(u: Unit, k: int, thr: dict[str, float], cells: list[tuple[str,
     life = np.geomspace(0.1 * life_median_h, 10 * life_median_h, 200)[:, None, None]
     onset = np.linspace(0.0, t[-1], 80)[None, :, None]
     xs = np.linspace(0.0, 30.0, 30001)          # fractions of life on which h is inverted
+    laws = [c[0] for c in cells]
     lls, ruls = [], []
     for law, shape, knee in cells:
+        log_prior = -math.log(len(set(laws)) * laws.count(law))
         mu = T * _mean_shape(law, (t - onset) / life, shape, knee)            # [L, onset, n]
         dmu = np.diff(mu, axis=-1)
         hs = _mean_shape(law, xs, shape, knee)
@@ -295,7 +298,7 @@ def reference_rul(u: Unit, k: int, thr: dict[str, float], cells: list[tuple[str,
             ll = -0.5 * np.sum((np.diff(y) - dmu) ** 2 / var + np.log(var), -1)
             v0 = nu * np.maximum(mu[..., 0], 1e-12) + sd[0] ** 2
             ll = ll - 0.5 * ((y[0] - mu[..., 0]) ** 2 / v0 + np.log(v0))
-            lls.append(ll.ravel())
+            lls.append(ll.ravel() + log_prior)
             ruls.append(rul)
     ll, rul = np.concatenate(lls), np.concatenate(ruls)
     w = np.exp(ll - ll.max())
@@ -307,11 +310,13 @@ def reference_rul(u: Unit, k: int, thr: dict[str, float], cells: list[tuple[str,
 REFERENCES = {
     "law_and_shape_known": "law, its shape parameter and the volatility known",
     "law_known": "law known, its shape parameter and the volatility within the fleet's ranges",
-    "fleet_laws_known": "the fleet's four laws and their ranges known, not which one the unit follows",
+    "fleet_laws_known": "the fleet's four laws (each 1/4 a priori) and their ranges known, not which one the "
+                        "unit follows",
     "generic_shapes": "no law known: a generic library of power (p 0.3-4, linear included) and exponential "
-                      "(beta 0.5-6) shapes",
+                      "(beta 0.5-6) shapes, each family 1/2 a priori",
 }
-#: The generic library of the last reference: what a learner without the fleet's laws might use.
+#: The generic library of the last reference: what a learner without the fleet's laws might use (the
+#: power family and the exponential one equally likely a priori).
 GENERIC_CELLS = ([("power", p, float("nan")) for p in (0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0, 4.0)]
                  + [("exponential", beta, float("nan")) for beta in (0.5, 1.0, 2.0, 4.0, 6.0)])
 
