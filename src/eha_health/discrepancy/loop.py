@@ -74,16 +74,14 @@ class _Split:
     settings: Settings
     segments: dict | None
     final_fit: str
-    excluded: dict | None = None     # channel -> mask of samples with no information (weight 0)
 
     def __post_init__(self):
         n = len(self.record)
         self.index = int(round(self.settings.fit_fraction * n))
         fit_mask = np.arange(n) < self.index
-        w = {c: (~m).astype(float) for c, m in (self.excluded or {}).items()} or None
-        self.r_all, self.r_fit, self.r_held = (Residual(self.record, sample_factors=w),
-                                               Residual(self.record, fit_mask, sample_factors=w),
-                                               Residual(self.record, ~fit_mask, sample_factors=w))
+        # (the record's excluded samples weigh nothing in each: Record.excluded)
+        self.r_all, self.r_fit, self.r_held = (Residual(self.record), Residual(self.record, fit_mask),
+                                               Residual(self.record, ~fit_mask))
         self.r_final = self.r_all if self.final_fit == "all" else self.r_fit
         rec = self.record
         self.noise = ({c: rest_noise_level(y, rec.command, rec.sample_rate) for c, y in rec.channels.items()}
@@ -117,13 +115,13 @@ class _Split:
 
     def measured(self, out: np.ndarray) -> dict[str, np.ndarray]:
         """The recorded channels with the excluded samples set to ``out``'s (residual 0 there)."""
-        ex = self.excluded or {}
+        ex = self.record.excluded
         return {c: np.where(ex[c], out[:, CHANNEL_COLUMNS[c]], y) if c in ex else y
                 for c, y in self.record.channels.items()}
 
     def rms(self, res: Residual, out: np.ndarray) -> dict[str, float]:
         """Unweighted RMS per channel [SI] on ``res``'s samples, the excluded ones left out."""
-        ex = self.excluded or {}
+        ex = self.record.excluded
         rms = res.rms(out)
         for c, m in ex.items():
             keep = ~m[res.mask]
@@ -414,9 +412,9 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     for line in cleaned.lines:
         say(line)
     if cleaned.changed:
-        record = dataclasses.replace(record, channels=cleaned.channels)
+        record = dataclasses.replace(record, channels=cleaned.channels, excluded=cleaned.excluded)
         model = KnobModel(model.base, model.knobs, record)
-    split = _Split(record, settings, segments, final_fit, cleaned.excluded)
+    split = _Split(record, settings, segments, final_fit)
 
     say("fitting the model as it stands")
     before = least_squares(Problem(model, split.r_final), x)

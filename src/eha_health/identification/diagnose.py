@@ -414,7 +414,8 @@ def _identify(response: Response, method: str, fitness: str, seed: int, start: F
     sd, corr, sd_stat, out = error_bars(lsq, x, noise_level(response.position), finished_by)
     cost = float(objective.cost(out))
     warn = guard_warn + twin_warnings(corr, x, est.population, est.population_cost, cost)
-    q_final = fit_quality(stage, stage.cost(out), record)
+    fit_cost = stage.cost(out)
+    q_final = fit_quality(stage, fit_cost, record)
     if method == "fast" and q_final > GUARD_FACTOR:
         # the global search did not bring the fit within the guard either: the record is not the
         # monitor model's (measured: a time base 1 % fast, 1974x, the coefficients 0.3 off; the undeclared
@@ -436,7 +437,7 @@ def _identify(response: Response, method: str, fitness: str, seed: int, start: F
                      std_stat=dict(zip(FAULT_NAMES, map(float, sd_stat))), correlation=corr, method=method,
                      fitness=fitness, cost=cost, evaluations=model.runs, wall_time_s=time.perf_counter() - t0,
                      history=history, warnings=warn, start=start, fitted=fitted, rms=rms, seed=int(seed),
-                     fit_cost=stage.cost(out), fit_quality=q_final, guard=guard)
+                     fit_cost=fit_cost, fit_quality=q_final, guard=guard)
 
 
 _TABLES: dict = {}
