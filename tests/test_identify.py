@@ -56,6 +56,24 @@ def test_a_clipped_or_glitched_recording_is_cleaned_before_the_diagnosis_it_woul
     assert any("5 spikes" in w for w in dg.warnings), dg.warnings
 
 
+def test_a_dead_transducer_does_not_blind_the_diagnosis_to_its_fault():
+    """A pressure transducer that reads 0 all test (dead): the cleaning sets it aside whole, and the
+    fast method's stage objectives -- K_FSJ read off the ramp pressure -- see nothing of K_FSJ (measured:
+    0.013 +- 0.007 for 0.4, guard passed). The dead channel routes the fit to the GA on the whole
+    test, where the position and velocity still carry the friction; the warning says so."""
+    truth = (0.3, 0.4, 0.3)
+    r = simulate(params=load("reference").with_effect_names(["sensor_noise"]), faults=Faults(*truth), seed=777)
+    r.pressure = np.zeros_like(r.pressure)
+    d = diagnose(r)
+    assert d.guard == "blind"
+    assert np.abs(np.array(d.faults.as_tuple()) - truth).max() <= 0.03, d.faults
+    assert abs(d.faults.k_fsj - 0.4) <= 3 * d.std["k_fsj"] + 0.005, (d.faults, d.std)
+    assert any(w.startswith("pressure has no sample left") and "K_FSJ" in w for w in d.warnings), d.warnings
+    # the paper's deterministic method is routed the same way (its K_FSJ stage is the same ramp pressure)
+    det = diagnose(r, method="deterministic")
+    assert abs(det.faults.k_fsj - 0.4) <= 0.03 and any("instead of deterministic" in w for w in det.warnings)
+
+
 def test_a_record_the_model_cannot_fit_is_not_passed_off_as_a_diagnosis():
     """Every channel on a clock 1 % fast: no coefficients fit it (the global search ran and the fit
     still leaves ~2000x the floor); the diagnosis says plainly that its coefficients are not to be trusted."""

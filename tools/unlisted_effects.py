@@ -92,6 +92,12 @@ def pressure_clipped(r):
     return r
 
 
+def dead(r, channel):
+    """The transducer (or its cable) dead: the channel reads 0 all test."""
+    setattr(r, channel, np.zeros_like(getattr(r, channel)))
+    return r
+
+
 def hum_and_current_offset(r):
     r.pressure = r.pressure + 2e5 * np.sin(2 * np.pi * 50.0 * r.t)
     r.current = r.current + 2e-4
@@ -159,6 +165,8 @@ ALTERED = {
     "position frozen 25 ms every 0.5 s": position_frozen,
     "position 60 Hz hum 10 um": position_hum,
     "pressure clipped at +-1 MPa": pressure_clipped,
+    "pressure transducer dead (reads 0)": lambda r: dead(r, "pressure"),
+    "position transducer dead (reads 0)": lambda r: dead(r, "position"),
     "oil 1.5 GPa + pressure offset 0.2 MPa": lambda r: offset(r, "pressure", 2e5),
     "position quantised 20 um": lambda r: quantised(r, "position", 20e-6),
     "pressure quantised 50 kPa": lambda r: quantised(r, "pressure", 5e4),

@@ -125,6 +125,26 @@ def fdi_stages(fitness, record: Record, sequence: FDISequence) -> tuple[Stage, .
 
 #: Channels of the stage objectives and the segments each is read on (see :func:`fdi_stages`).
 STAGE_CHANNELS = {"pressure": ("ramp",), "position": ("ramp", "step"), "velocity": ("ramp",)}
+#: The coefficients each stage channel's objective reads (see :func:`fdi_stages`).
+STAGE_FAULTS = {"pressure": ("K_FSJ",), "position": ("K_GM", "K_BKL"), "velocity": ("K_BKL",)}
+
+
+def blind_stages(record: Record, sequence: FDISequence) -> dict[str, tuple[str, ...]]:
+    """Stage channels with no sample left on their stage segments (every one excluded, e.g. a dead
+    transducer set aside by the cleaning), each with the coefficients whose stage objective it
+    carries: there the stage objectives -- and the start read off the same signatures -- see
+    nothing of those coefficients."""
+    blind = {}
+    for c, segs in STAGE_CHANNELS.items():
+        ex = record.excluded.get(c)
+        if ex is None:
+            continue
+        on = np.zeros(len(record), bool)
+        for s in segs:
+            on |= sequence.mask(s, record.t)
+        if on.any() and ex[on].all():
+            blind[c] = STAGE_FAULTS[c]
+    return blind
 
 
 class FeatureResidual:
