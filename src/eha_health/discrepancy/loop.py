@@ -539,8 +539,10 @@ def analyse_fdi_test(response, max_effects: int = 2, seed: int = 0, params: Mode
                      settings: Settings | None = None, progress=None, diagnosis=None) -> DiscrepancyReport:
     """The loop on one FDI test: start from :func:`start_diagnosis` (the given diagnosis when it fits
     the whole test, else the :data:`START_METHOD` one run with ``seed``)."""
-    record = Record.from_response(response)
     diagnosis = start_diagnosis(response, seed, params, progress, diagnosis)
+    # the command as the diagnosis held it (a record slower than the controller: problem.oversampling)
+    rate = diagnosis.command_rate if np.isfinite(diagnosis.command_rate) else None
+    record = dataclasses.replace(Record.from_response(response), command_rate=rate)
 
     def rediagnose(model: KnobModel, x: np.ndarray) -> tuple[np.ndarray, int]:
         # the fast global method: one per refitted candidate, only when a round finds nothing on a
@@ -548,7 +550,7 @@ def analyse_fdi_test(response, max_effects: int = 2, seed: int = 0, params: Mode
         # (clean=False: as before diagnose cleaned; whether the loop's exclusions should reach the
         # re-identification is not measured yet)
         d = diagnose(corrected(response, model, x), method="deterministic", params=model.params_at(x)[0],
-                     clean=False)
+                     clean=False, command_rate=rate)
         return np.array(d.faults.as_tuple()), int(d.evaluations)
 
     return run_loop(record, params, FAULT_KNOBS, np.array(diagnosis.faults.as_tuple()),

@@ -38,6 +38,10 @@ class Record:
     #: channel -> mask of samples with no information about the actuator (spikes, clipped or
     #: frozen samples: :func:`~eha_health.signals.cleaning.clean`): weight 0 in every residual
     excluded: dict[str, np.ndarray] = field(default_factory=dict)
+    #: [Hz] rate at which the actuator's controller updated the command, held between updates; None:
+    #: not known, taken as :data:`~.problem.COMMAND_RATE_HZ` (a record sampled slower is simulated at
+    #: a multiple of its rate, the command interpolated: :func:`~.problem.oversampling`)
+    command_rate: float | None = None
 
     @classmethod
     def from_response(cls, r: Response, channels: tuple[str, ...] | None = None) -> "Record":
