@@ -19,6 +19,7 @@ loop's time (or the error that refused the record before any fit). The figures o
 from this script.
 """
 import copy
+import dataclasses
 import sys
 
 import numpy as np
@@ -98,6 +99,13 @@ def dead(r, channel):
     return r
 
 
+def logged_slower(r, k):
+    """A logger at 1/k of the controller's rate: every k-th sample of every signal."""
+    n = len(r.t)
+    return dataclasses.replace(r, **{f.name: getattr(r, f.name)[::k] for f in dataclasses.fields(r)
+                                     if isinstance(getattr(r, f.name), np.ndarray) and len(getattr(r, f.name)) == n})
+
+
 def hum_and_current_offset(r):
     r.pressure = r.pressure + 2e5 * np.sin(2 * np.pi * 50.0 * r.t)
     r.current = r.current + 2e-4
@@ -167,6 +175,7 @@ ALTERED = {
     "pressure clipped at +-1 MPa": pressure_clipped,
     "pressure transducer dead (reads 0)": lambda r: dead(r, "pressure"),
     "position transducer dead (reads 0)": lambda r: dead(r, "position"),
+    "logged at 250 Hz (controller at 1 kHz)": lambda r: logged_slower(r, 4),
     "oil 1.5 GPa + pressure offset 0.2 MPa": lambda r: offset(r, "pressure", 2e5),
     "position quantised 20 um": lambda r: quantised(r, "position", 20e-6),
     "pressure quantised 50 kPa": lambda r: quantised(r, "pressure", 5e4),
