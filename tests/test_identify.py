@@ -462,3 +462,33 @@ def test_record_names_an_absent_channel_and_the_first_bad_sample():
     with pytest.raises(ValueError, match=r"channel pressure has 3 NaN or inf samples, the first at t = 2 s"):
         Record.from_response(r, MEASURED)
     assert set(Record.from_response(r).channels) == {"position", "velocity", "current"}   # unnamed: left out
+
+
+def test_a_logger_started_before_the_test_is_cut_where_the_command_starts_the_sequence(tmp_path):
+    """0.3 s of rest recorded before the FDI test: the stage segments were read 0.3 s early (the guard
+    fired and the global search ran on the misaligned segments). The library refuses it, naming where
+    the test starts; the CLI cuts the record there, says so, and diagnoses the test."""
+    from eha_health.identification.record import LaterStart
+    from eha_health.signals.response import Response
+    truth = (0.3, 0.4, 0.3)
+    r = simulate(params=load("reference").with_effect_names(["sensor_noise"]), faults=Faults(*truth), seed=777)
+    n, rng = 300, np.random.default_rng(1)
+    cols = {"t": np.arange(len(r.t) + n) / 1000.0}
+    for c in ("command", "position", "velocity", "pressure", "current", "spool"):
+        v = getattr(r, c)
+        rest = np.full(n, v[0]) + (0.0 if c == "command" else rng.normal(0.0, 1e-3 * np.std(v), n))
+        cols[c] = np.concatenate([rest, v])
+    early = Response(**cols)
+    with pytest.raises(LaterStart, match=r"starts at t = 0\.3 s"):
+        diagnose(early)
+    f = tmp_path / "pretrigger.csv"
+    early.to_csv(f)
+    p = _cli("diagnose", str(f), "--json")
+    assert p.returncode == 0, p.stderr
+    assert "starts at t = 0.3 s of the record" in p.stderr and "300 samples before it were dropped" in p.stderr
+    d = json.loads(p.stdout)
+    assert max(abs(d[k] - v) for k, v in zip(("k_gm", "k_fsj", "k_bkl"), truth)) <= 0.01, d
+    assert d["guard"] == "passed"
+    # a few milliseconds is a skew of the command channel, not a test in the wrong place: diagnosed as it is
+    skewed = Response(**{k: (v[295:] - v[295] if k == "t" else v[295:]) for k, v in cols.items()})
+    assert diagnose(skewed).faults is not None

@@ -46,10 +46,12 @@ def cmd_diagnose(args) -> int:
 
 def discrepancy_mode(r) -> tuple[str, str]:
     """("fdi", "") when ``r`` is a whole FDI test with every channel, else ("rig", why it is not)."""
-    from ..identification.record import fdi_record
+    from ..identification.record import LaterStart, fdi_record
     from ..physics.sequence import FDISequence
     try:
         fdi_record(r, FDISequence())
+    except LaterStart:
+        raise           # an FDI test in the wrong place is not a rig record: the message says where it starts
     except ValueError as e:
         return "rig", str(e)
     return "fdi", ""

@@ -108,4 +108,7 @@ def load_run(path: Path, test_id: int | None, required: tuple[str, ...] | None =
         return run.response, truth_values(run.truth), run.notes
     if test_id is not None:
         raise UsageError("--test applies to MCAP bags only")
-    return (Response.from_csv(path, required) if required else Response.from_csv(path)), None, []
+    from ..identification.record import from_test_start
+    # a logger started before the test: cut where the command shows the FDI sequence starting
+    r, note = from_test_start(Response.from_csv(path, required) if required else Response.from_csv(path))
+    return r, None, [note] if note else []

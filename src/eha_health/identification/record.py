@@ -8,9 +8,10 @@ t = 0 and covers the sequence).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
+from scipy.signal import fftconvolve
 
 from ..physics.sequence import FDISequence
 from ..signals.channels import MEASURED
@@ -96,14 +97,74 @@ class Record:
         return len(self.t)
 
 
+#: A recorded command that matches the sequence from a later sample this many times better (in mean
+#: square) than from t = 0, and there within this share of the sequence's RMS, is a test that starts
+#: later in the record (a logger started before it) [-] -- when it starts at least LATER_START_MIN_S
+#: [s] in: a few milliseconds is a skew of the command channel, which the discrepancy loop names
+#: (command_skew), not a test in the wrong place
+LATER_START_GAIN, LATER_START_MATCH, LATER_START_MIN_S = 10.0, 0.05, 0.02
+
+
+class LaterStart(ValueError):
+    """The FDI test starts later in the record than t = 0 (the message says where, and what to do)."""
+
+
+def later_start(t: np.ndarray, command: np.ndarray, sequence: FDISequence) -> tuple[int, float] | None:
+    """``(k, err0)`` when the recorded ``command`` shows ``sequence`` starting at sample k > 0 rather
+    than at the first (the best match over every start that leaves the whole sequence in the record,
+    at sample resolution; the thresholds above), with its RMS mismatch from the first sample [m];
+    else None."""
+    rate = 1.0 / float(np.median(np.diff(t)))
+    c = np.asarray(command, float)
+    if len(c) <= round(sequence.duration * rate) or not np.isfinite(c).all():
+        return None                     # (checked first: no sequence longer than the record is built)
+    u = sequence.command(sequence.times(rate))
+    n = len(u)
+    # sum over the window of (c - u)^2 for every start k: sum c^2 (cumulative) - 2 c.u (correlation) + sum u^2
+    c2 = np.concatenate([[0.0], np.cumsum(c * c)])
+    sq = np.maximum(c2[n:] - c2[:-n] - 2 * fftconvolve(c, u[::-1], mode="valid") + float(u @ u), 0.0) / n
+    k = int(np.argmin(sq))
+    if (t[k] - t[0] >= LATER_START_MIN_S and sq[k] < (LATER_START_MATCH ** 2) * float(u @ u) / n
+            and sq[k] * LATER_START_GAIN < sq[0]):
+        return k, float(np.sqrt(sq[0]))
+    return None
+
+
 def check_fdi(record: Record, sequence: FDISequence) -> None:
     """Raise ``ValueError`` unless ``record`` can be a run of ``sequence``: it starts at t = 0 and
-    lasts the whole sequence."""
+    lasts the whole sequence (:class:`LaterStart` when its command shows the test starting later)."""
     t, rate = record.t, record.sample_rate
     if abs(t[0]) > 0.5 / rate:
         raise ValueError(f"record starts at t={t[0]:g} s: the test window must start at t=0")
     if t[-1] + 1.0 / rate < sequence.duration - 1e-9:
         raise ValueError(f"record covers {t[-1] + 1.0 / rate:.3f} s but the FDI sequence lasts {sequence.duration:g} s")
+    late = later_start(t, record.command, sequence)
+    if late is not None:
+        start = float(t[late[0]] - t[0])
+        raise LaterStart(f"the FDI test starts at t = {start:.4g} s of the record, not at t = 0: its command "
+                         f"matches the sequence from there (from t = 0 it is {1e3 * late[1]:.3g} mm RMS off; a "
+                         f"logger started before the test?): cut the record there -- drop the rows before "
+                         f"t = {start:.4g} s and subtract {start:.4g} s from t (the CLI does it, and says so)")
+
+
+def from_test_start(response: Response, sequence: FDISequence | None = None) -> tuple[Response, str | None]:
+    """``response`` cut where its command shows ``sequence`` starting (:func:`later_start`), t from 0
+    there, and a note saying so; unchanged and None when it starts at the first sample."""
+    seq = sequence or FDISequence()
+    t = np.asarray(response.t, float)
+    if len(t) < 2 or not (np.diff(t) > 0).all():
+        return response, None           # Record.from_response names the problem
+    late = later_start(t, response.command, seq)
+    if late is None:
+        return response, None
+    k, err0 = late
+    n = len(t)
+    cut = {f.name: np.asarray(v)[k:] for f in fields(response)
+           if isinstance(v := getattr(response, f.name), np.ndarray) and v.ndim == 1 and len(v) == n}
+    cut["t"] = t[k:] - t[k]
+    return replace(response, **cut), (f"the FDI test starts at t = {t[k] - t[0]:.4g} s of the record (its command "
+                                      f"matches the sequence from there; from t = 0 it is {1e3 * err0:.3g} mm RMS "
+                                      f"off): the {k} samples before it were dropped and t counted from there")
 
 
 def fdi_record(response: Response, sequence: FDISequence) -> Record:
