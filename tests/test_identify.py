@@ -264,7 +264,7 @@ def _write(path, t, cols=CSV_COLUMNS, mutate=None):
 
 
 @pytest.mark.parametrize("kind, match", [
-    ("missing", "missing column"),
+    ("missing", "missing column(s) command"),
     ("nan", "NaN"),
     ("order", "not strictly increasing"),
     ("short", "FDI sequence lasts"),
@@ -278,8 +278,8 @@ def _write(path, t, cols=CSV_COLUMNS, mutate=None):
 def test_cli_diagnose_bad_input_exits_2(tmp_path, kind, match):
     f = tmp_path / f"{kind}.csv"
     t = np.arange(3500) / 1000.0
-    if kind == "missing":
-        _write(f, t, cols=[c for c in CSV_COLUMNS if c != "pressure"])
+    if kind == "missing":        # (a missing measured column is diagnosed from the others: a test above)
+        _write(f, t, cols=[c for c in CSV_COLUMNS if c != "command"])
     elif kind == "nan":
         _write(f, t, mutate=lambda d: d.__setitem__((100, 2), np.nan))
     elif kind == "order":
@@ -492,3 +492,27 @@ def test_a_logger_started_before_the_test_is_cut_where_the_command_starts_the_se
     # a few milliseconds is a skew of the command channel, not a test in the wrong place: diagnosed as it is
     skewed = Response(**{k: (v[295:] - v[295] if k == "t" else v[295:]) for k, v in cols.items()})
     assert diagnose(skewed).faults is not None
+
+
+def test_a_record_without_some_channels_is_diagnosed_from_the_others(tmp_path):
+    """A rig that records no pressure and no current: the CSV lacks the columns. The stage objectives
+    cannot see K_FSJ (the ramp pressure), so the GA fits the whole test on position and velocity; the
+    diagnosis says which channel was missing, and its error bar on K_FSJ is wider than with pressure."""
+    truth = (0.3, 0.4, 0.3)
+    r = simulate(params=load("reference").with_effect_names(["sensor_noise"]), faults=Faults(*truth), seed=777)
+    full = diagnose(r)
+    f = tmp_path / "no_pressure.csv"
+    cols = ("t", "command", "position", "velocity")
+    np.savetxt(f, np.column_stack([getattr(r, c) for c in cols]), delimiter=",", header=",".join(cols), comments="")
+    p = _cli("diagnose", str(f), "--json")
+    assert p.returncode == 0, p.stderr
+    d = json.loads(p.stdout)
+    assert max(abs(d[k] - v) for k, v in zip(("k_gm", "k_fsj", "k_bkl"), truth)) <= 0.03, d
+    assert abs(d["k_fsj"] - 0.4) <= 3 * d["std"]["k_fsj"], d
+    assert d["std"]["k_fsj"] > 2 * full.std["k_fsj"]
+    assert d["guard"] == "blind" and set(d["rms"]) == {"position", "velocity"}
+    assert any(w.startswith("pressure has no sample left") and "not recorded" in w for w in d["warnings"])
+    # a channel with some NaN samples is still refused, naming them (a dropout, not a missing transducer)
+    r.pressure[100:120] = np.nan
+    with pytest.raises(ValueError, match="pressure has 20 NaN"):
+        diagnose(r)

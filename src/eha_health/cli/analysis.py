@@ -15,7 +15,8 @@ from .common import (UsageError, fitness_option, json_flag, load_run, method_opt
 def cmd_diagnose(args) -> int:
     from ..identification.diagnose import diagnose
     path = Path(args.run)
-    r, truth, notes = load_run(path, args.test)
+    # a CSV may lack measured columns (a rig without a current or velocity record): diagnosed from the others
+    r, truth, notes = load_run(path, args.test, None if path.suffix.lower() == ".mcap" else ("t", "command"))
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
     prog = progress(args)
@@ -34,8 +35,9 @@ def cmd_diagnose(args) -> int:
     for key, val in zip(FAULT_NAMES, k.as_tuple()):
         tr = f"   truth {truth[key]:.4f}" if truth else ""
         print(f"  {key.upper():5s} = {val:.4f} +/- {d.std[key]:.4f}  (0 healthy, 1 limit){tr}")
-    print(f"  fit RMS: position {d.rms['position'] * 1e6:.1f} um, pressure {d.rms['pressure'] / 1e3:.1f} kPa, "
-          f"current {d.rms['current'] * 1e6:.1f} uA;  fitness {d.cost:.4g}")
+    scales = {"position": (1e6, "um"), "velocity": (1e3, "mm/s"), "pressure": (1e-3, "kPa"), "current": (1e6, "uA")}
+    print("  fit RMS: " + ", ".join(f"{c} {v * scales[c][0]:.1f} {scales[c][1]}" for c, v in d.rms.items())
+          + f";  fitness {d.cost:.4g}")
     print(f"  {d.evaluations} monitor simulations in {d.wall_time_s:.2f} s")
     for w in d.warnings:
         print(f"  warning: {w}")
@@ -44,12 +46,20 @@ def cmd_diagnose(args) -> int:
     return 0
 
 
+def check_fdi_test(r) -> None:
+    """``ValueError`` unless ``r`` is a whole FDI test with every channel: the FDI loop compares every
+    channel (``diagnose`` takes fewer; a record without some is analysed as a rig's)."""
+    from ..identification.record import Record, check_fdi
+    from ..physics.sequence import FDISequence
+    from ..signals.channels import MEASURED
+    check_fdi(Record.from_response(r, MEASURED), FDISequence())
+
+
 def discrepancy_mode(r) -> tuple[str, str]:
     """("fdi", "") when ``r`` is a whole FDI test with every channel, else ("rig", why it is not)."""
-    from ..identification.record import LaterStart, fdi_record
-    from ..physics.sequence import FDISequence
+    from ..identification.record import LaterStart
     try:
-        fdi_record(r, FDISequence())
+        check_fdi_test(r)
     except LaterStart:
         raise           # an FDI test in the wrong place is not a rig record: the message says where it starts
     except ValueError as e:
@@ -67,6 +77,8 @@ def cmd_discrepancy(args) -> int:
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
     mode, why = discrepancy_mode(r) if args.mode == "auto" else (args.mode, "")
+    if args.mode == "fdi":
+        check_fdi_test(r)
     if why:
         # say it: a user who meant an FDI test should not have to guess why the faults are missing
         print(f"note: analysed as a rig record, not an FDI test: {why}", file=sys.stderr)

@@ -42,7 +42,7 @@ def cmd_history_add(args) -> int:
     _finite(args.time_h, "--time-h")
     _finite(args.usage, "--usage")
     db = _db(args, must_exist=False)
-    r, _, notes = load_run(path, args.test)
+    r, _, notes = load_run(path, args.test, None if path.suffix.lower() == ".mcap" else ("t", "command"))
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
     time_h, usage, sim_s = args.time_h, args.usage, None

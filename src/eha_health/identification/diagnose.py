@@ -108,7 +108,7 @@ class Diagnosis:
     warnings: list[str] = field(default_factory=list)
     start: Faults | None = None
     fitted: Response | None = None      # monitor response at the estimate
-    rms: dict[str, float] = field(default_factory=dict)  # per-channel RMS fitted - measured [SI]
+    rms: dict[str, float] = field(default_factory=dict)  # per recorded channel: RMS fitted - measured [SI]
     seed: int = 0
     fit_cost: float = float("nan")      # stage cost at the estimate (fitness.fdi_stage_residual) [-]
     fit_quality: float = float("nan")   # stage cost / (model floor + noise cost) at the estimate [-]
@@ -173,9 +173,11 @@ def search(problem: Problem, method: str, x_start: np.ndarray, stages, seed: int
 def start_point(model: KnobModel, response: Response, sequence: FDISequence) -> Faults:
     """The signature tables' estimate (:mod:`.start`; 0.5 each if the signatures cannot be read)."""
     try:
-        return _start_table(model.base, sequence).estimate_response(response, sequence)
+        k = _start_table(model.base, sequence).estimate_response(response, sequence)
     except ValueError:
         return Faults(0.5, 0.5, 0.5)
+    # a channel not recorded (all NaN) leaves its coefficient's signature unread
+    return Faults(*(v if np.isfinite(v) else 0.5 for v in k.as_tuple()))
 
 
 def error_bars(problem: Problem, x: np.ndarray, position_noise_m: float, method: str = DEFAULT_METHOD):
@@ -420,7 +422,8 @@ def _identify(response: Response, method: str, fitness: str, seed: int, start: F
     if blind:
         seen = sorted({f for fs in blind.values() for f in fs})
         guard_warn.append(f"{' and '.join(blind)} {'has' if len(blind) == 1 else 'have'} no sample left on "
-                          f"the test's stage segments (excluded): the stage objectives and the start cannot see "
+                          f"the test's stage segments (not recorded, or set aside by the data check): the stage "
+                          f"objectives and the start cannot see "
                           f"{', '.join(seen)}; identified on the whole test from the other channels by the "
                           f"global search (ga) instead of {method}")
         if progress:
@@ -460,7 +463,9 @@ def _identify(response: Response, method: str, fitness: str, seed: int, start: F
                 est, finished_by = polished, "fast"
     x = est.x
     lsq = problem if isinstance(objective, Residual) else Problem(model, make_fitness("lsq", record, seq))
-    sd, corr, sd_stat, out = error_bars(lsq, x, noise_level(response.position), finished_by)
+    # (no position recorded: the sensor-noise term of the error bars, scaled by its noise, is left out)
+    sd, corr, sd_stat, out = error_bars(lsq, x, noise_level(response.position) if "position" in record.channels
+                                        else 0.0, finished_by)
     cost = float(objective.cost(out))
     warn = guard_warn + twin_warnings(corr, x, est.population, est.population_cost, cost)
     fit_cost = stage.cost(out)
@@ -479,9 +484,9 @@ def _identify(response: Response, method: str, fitness: str, seed: int, start: F
     # (on the samples that carry information: a cleaned record's excluded ones are left out)
     # (a channel excluded whole -- a dead transducer -- is reported over all its samples)
     keep = {c: ~record.excluded[c] if c in record.excluded and not record.excluded[c].all() else slice(None)
-            for c in MEASURED}
+            for c in record.channels}
     rms = {c: float(np.sqrt(np.mean((getattr(fitted, c)[keep[c]] - record.channels[c][keep[c]]) ** 2)))
-           for c in MEASURED}
+           for c in MEASURED if c in record.channels}
     return Diagnosis(faults=Faults(*(float(v) for v in x)), std=dict(zip(FAULT_NAMES, map(float, sd))),
                      std_stat=dict(zip(FAULT_NAMES, map(float, sd_stat))), correlation=corr, method=method,
                      fitness=fitness, cost=cost, evaluations=model.runs, wall_time_s=time.perf_counter() - t0,

@@ -130,12 +130,15 @@ STAGE_FAULTS = {"pressure": ("K_FSJ",), "position": ("K_GM", "K_BKL"), "velocity
 
 
 def blind_stages(record: Record, sequence: FDISequence) -> dict[str, tuple[str, ...]]:
-    """Stage channels with no sample left on their stage segments (every one excluded, e.g. a dead
-    transducer set aside by the cleaning), each with the coefficients whose stage objective it
-    carries: there the stage objectives -- and the start read off the same signatures -- see
-    nothing of those coefficients."""
+    """Stage channels with no sample left on their stage segments (not recorded, or every one
+    excluded, e.g. a dead transducer set aside by the cleaning), each with the coefficients whose
+    stage objective it carries: there the stage objectives -- and the start read off the same
+    signatures -- see nothing of those coefficients."""
     blind = {}
     for c, segs in STAGE_CHANNELS.items():
+        if c not in record.channels:
+            blind[c] = STAGE_FAULTS[c]
+            continue
         ex = record.excluded.get(c)
         if ex is None:
             continue

@@ -168,7 +168,9 @@ def from_test_start(response: Response, sequence: FDISequence | None = None) -> 
 
 
 def fdi_record(response: Response, sequence: FDISequence) -> Record:
-    """The record of an FDI test: every measured channel required, checked against ``sequence``."""
-    rec = Record.from_response(response, MEASURED)
+    """The record of an FDI test, checked against ``sequence``: the measured channels it holds (one
+    that is all NaN was not recorded; one with some NaN samples is refused, naming them)."""
+    recorded = tuple(c for c in MEASURED if np.isfinite(np.asarray(getattr(response, c), float)).any())
+    rec = Record.from_response(response, recorded or MEASURED)
     check_fdi(rec, sequence)
     return rec
