@@ -226,3 +226,25 @@ def test_dask_config_gives_hand_started_workers_the_local_cluster_settings(tmp_p
     spawn_env, profile, tick = json.loads(out)
     assert "MALLOC_TRIM_THRESHOLD_" not in spawn_env and spawn_env["NUMBA_NUM_THREADS"] == "1"
     assert spawn_env["OMP_NUM_THREADS"] == "1" and profile is False and tick == "1s"
+
+
+def test_a_csv_that_starts_before_the_test_and_lacks_a_column_is_diagnosed_and_says_so(tmp_path):
+    """A fleet's CSV from a logger started 0.3 s before the test, with no current column: the worker's
+    task cuts it where the command starts the sequence, diagnoses it from the channels it has, and the
+    cut leads its warnings (before: one line, a missing column, and no diagnosis)."""
+    import numpy as np
+    from eha_health import Faults, simulate
+    from eha_health.fleet.worker import diagnose_recording
+    from eha_health.physics.params import load
+    truth = (0.3, 0.4, 0.3)
+    r = simulate(params=load("reference").with_effect_names(["sensor_noise"]), faults=Faults(*truth), seed=777)
+    cols = ("t", "command", "position", "velocity", "pressure")
+    rest = 300
+    data = [np.arange(len(r.t) + rest) / 1000.0] + [np.concatenate([np.full(rest, getattr(r, c)[0]), getattr(r, c)])
+                                                    for c in cols[1:]]
+    f = tmp_path / "pretrigger_no_current.csv"
+    np.savetxt(f, np.column_stack(data), delimiter=",", header=",".join(cols), comments="")
+    out = diagnose_recording(str(f), load("monitor"))
+    assert "error" not in out, out.get("error")
+    assert max(abs(k - v) for k, v in zip(out["k"], truth)) <= 0.01, out["k"]
+    assert out["warnings"][0].startswith("the FDI test starts at t = 0.3 s") and set(out["rms"]) == set(cols[2:])

@@ -188,5 +188,5 @@ def read_recording(path: str | Path) -> tuple[Response, dict | None]:
         truth = {k: float(run.truth[k]) for k in FAULT_NAMES} if run.truth else None
         return run.response, truth
     if path.suffix.lower() == ".csv":
-        return Response.from_csv(path), None
+        return Response.from_csv(path, ("t", "command")), None     # measured columns it lacks: diagnose says
     raise FleetError(f"{path}: not a recording (.mcap or .csv)")

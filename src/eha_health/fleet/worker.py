@@ -80,8 +80,11 @@ def diagnose_recording(path: str, params, method: str = DEFAULT_METHOD, seed: in
     numba.set_num_threads(threads)
     out: dict = {"path": path, "pid": os.getpid(), "numba_threads": numba.get_num_threads()}
     try:
+        from ..identification.record import from_test_start
         from .recordings import read_recording
         response, truth = read_recording(path)
+        # a logger started before the test: cut where the command starts the sequence, and say so
+        response, cut = from_test_start(response)
         t1, c1 = time.perf_counter(), time.thread_time()
         d = diagnose(response, method=method, seed=seed, params=params)
         t2, c2 = time.perf_counter(), time.thread_time()
@@ -91,7 +94,7 @@ def diagnose_recording(path: str, params, method: str = DEFAULT_METHOD, seed: in
             verdict = analyse_fdi_test(response, seed=seed, params=params, diagnosis=d).verdict
         t3 = time.perf_counter()
         out.update(k=list(d.faults.as_tuple()), std=[d.std[n] for n in ("k_gm", "k_fsj", "k_bkl")],
-                   method=d.method, cost=float(d.cost), rms=dict(d.rms), warnings=list(d.warnings),
+                   method=d.method, cost=float(d.cost), rms=dict(d.rms), warnings=[cut] * bool(cut) + list(d.warnings),
                    evaluations=int(d.evaluations), discrepancy=verdict, truth=truth,
                    read_s=t1 - t0, diagnosis_s=t2 - t1, discrepancy_s=t3 - t2, diagnosis_cpu_s=c2 - c1)
     except Exception as e:   # one bad file must not stop the batch: its reason goes back to the client
