@@ -331,10 +331,7 @@ def test_a_noise_free_recording_is_not_cleaned(bag, faults):
 
 def _decimated(r, k):
     """``r`` as a logger at 1/k of its rate records it (every k-th sample of every signal)."""
-    import dataclasses
-    n = len(r.t)
-    return type(r)(**{f.name: (v[::k] if isinstance(v := getattr(r, f.name), np.ndarray) and len(v) == n else v)
-                      for f in dataclasses.fields(r)})
+    return r.sliced(slice(None, None, k))
 
 
 def test_a_record_slower_than_its_controller_is_fitted_with_the_command_it_had():

@@ -19,7 +19,6 @@ loop's time (or the error that refused the record before any fit). The figures o
 from this script.
 """
 import copy
-import dataclasses
 import sys
 
 import numpy as np
@@ -101,9 +100,7 @@ def dead(r, channel):
 
 def logged_slower(r, k):
     """A logger at 1/k of the controller's rate: every k-th sample of every signal."""
-    n = len(r.t)
-    return dataclasses.replace(r, **{f.name: getattr(r, f.name)[::k] for f in dataclasses.fields(r)
-                                     if isinstance(getattr(r, f.name), np.ndarray) and len(getattr(r, f.name)) == n})
+    return r.sliced(slice(None, None, k))
 
 
 def hum_and_current_offset(r):

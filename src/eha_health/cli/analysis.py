@@ -8,15 +8,14 @@ from pathlib import Path
 import numpy as np
 
 from ..physics.faults import FAULT_NAMES
-from .common import (UsageError, fitness_option, json_flag, load_run, method_option, progress, quiet_flag, seed_option,
+from .common import (UsageError, fitness_option, json_flag, load_run, load_test, method_option, progress, quiet_flag, seed_option,
                      test_option)
 
 
 def cmd_diagnose(args) -> int:
     from ..identification.diagnose import diagnose
     path = Path(args.run)
-    # a CSV may lack measured columns (a rig without a current or velocity record): diagnosed from the others
-    r, truth, notes = load_run(path, args.test, None if path.suffix.lower() == ".mcap" else ("t", "command"))
+    r, truth, notes = load_test(path, args.test)
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
     prog = progress(args)

@@ -98,6 +98,12 @@ def params_from(args, kind: str):
     return p.with_effect_names(effects)   # ValueError names an unknown effect
 
 
+def load_test(path: Path, test_id: int | None):
+    """:func:`load_run` of a test to diagnose: an MCAP bag's whole window, a CSV's ``t`` and ``command``
+    and whichever measured columns it has (the diagnosis names those it lacks)."""
+    return load_run(path, test_id, None if path.suffix.lower() == ".mcap" else ("t", "command"))
+
+
 def load_run(path: Path, test_id: int | None, required: tuple[str, ...] | None = None):
     """(response, truth or None, notes) from a CSV (columns ``required``, default all) or an MCAP bag."""
     from ..signals.response import Response

@@ -14,7 +14,7 @@ import sys
 from pathlib import Path
 
 from ..physics.faults import FAULT_KEYS
-from .common import (UsageError, fitness_option, history_option, json_flag, load_run, method_option, progress,
+from .common import (UsageError, fitness_option, history_option, json_flag, load_test, method_option, progress,
                      quiet_flag, seed_option, test_option)
 
 def _db(args, must_exist: bool) -> Path:
@@ -42,7 +42,7 @@ def cmd_history_add(args) -> int:
     _finite(args.time_h, "--time-h")
     _finite(args.usage, "--usage")
     db = _db(args, must_exist=False)
-    r, _, notes = load_run(path, args.test, None if path.suffix.lower() == ".mcap" else ("t", "command"))
+    r, _, notes = load_test(path, args.test)
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
     time_h, usage, sim_s = args.time_h, args.usage, None

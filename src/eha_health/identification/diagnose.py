@@ -352,6 +352,7 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
     record = fdi_record(response, sequence or FDISequence())
     base = params if params is not None else load("monitor")
     args = (response, method, fitness, seed, start, params, sequence, ga_options, progress)
+    rate_note: list[str] = []
     if command_rate is None and oversampling(record.sample_rate, None, base.integration.dt) > 1:
         # the record does not say how fast the controller ran: a 1 kHz run recorded at 500 Hz fitted with
         # the command held over the 2 ms samples read K_BKL 0.016 off, a 500 Hz controller fitted with
@@ -364,7 +365,8 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
                    f"interpolated to {fast.command_rate:.4g} Hz (a faster controller)")
                 + f" (stage cost {min(held.fit_cost, fast.fit_cost):.4g} vs {max(held.fit_cost, fast.fit_cost):.4g}); "
                 f"`command_rate` sets it")
-        d = replace(d, warnings=[note] + d.warnings, evaluations=fast.evaluations + held.evaluations)
+        rate_note = [note]
+        d = replace(d, warnings=rate_note + d.warnings, evaluations=fast.evaluations + held.evaluations)
         if progress:
             progress(note)
     else:
@@ -380,8 +382,7 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
         if progress:
             progress(f"data check: {line}; identifying again")
     again = _identify(*args, cleaned=cleaned, command_rate=d.command_rate)
-    kept = [w for w in d.warnings if w.startswith("the record is sampled at")]
-    return replace(again, warnings=[f"data check: {line}" for line in cleaned.lines] + kept + again.warnings,
+    return replace(again, warnings=[f"data check: {line}" for line in cleaned.lines] + rate_note + again.warnings,
                    evaluations=d.evaluations + again.evaluations, wall_time_s=time.perf_counter() - t0)
 
 

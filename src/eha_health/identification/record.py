@@ -8,7 +8,7 @@ t = 0 and covers the sequence).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.signal import fftconvolve
@@ -158,13 +158,11 @@ def from_test_start(response: Response, sequence: FDISequence | None = None) -> 
     if late is None:
         return response, None
     k, err0 = late
-    n = len(t)
-    cut = {f.name: np.asarray(v)[k:] for f in fields(response)
-           if isinstance(v := getattr(response, f.name), np.ndarray) and v.ndim == 1 and len(v) == n}
-    cut["t"] = t[k:] - t[k]
-    return replace(response, **cut), (f"the FDI test starts at t = {t[k] - t[0]:.4g} s of the record (its command "
-                                      f"matches the sequence from there; from t = 0 it is {1e3 * err0:.3g} mm RMS "
-                                      f"off): the {k} samples before it were dropped and t counted from there")
+    cut = response.sliced(slice(k, None))
+    return replace(cut, t=cut.t - cut.t[0]), (
+        f"the FDI test starts at t = {t[k] - t[0]:.4g} s of the record (its command matches the sequence from "
+        f"there; from t = 0 it is {1e3 * err0:.3g} mm RMS off): the {k} samples before it were dropped and t "
+        f"counted from there")
 
 
 def fdi_record(response: Response, sequence: FDISequence) -> Record:

@@ -11,7 +11,7 @@ in the CSV and NaN in memory.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -42,6 +42,12 @@ class Response:
 
     def __len__(self) -> int:
         return len(self.t)
+
+    def sliced(self, index: slice) -> "Response":
+        """The response with every per-sample array (``t`` included, as it is) indexed by ``index``."""
+        n = len(self.t)
+        return replace(self, **{f.name: v[index] for f in fields(self)
+                                if isinstance(v := getattr(self, f.name), np.ndarray) and v.shape == (n,)})
 
     def to_csv(self, path: str | Path) -> None:
         cols = CSV_COLUMNS + (("load",) if self.load is not None else ())
