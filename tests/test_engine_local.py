@@ -5,6 +5,7 @@ import pytest
 from eha_health import simulate
 from eha_health.discrepancy.candidates import BY_NAME
 from eha_health.identification.knobs import FAULT_KNOBS
+from eha_health.identification.jacobian import jacobian, jacobian_at, residual
 from eha_health.identification.local import least_squares
 from eha_health.identification.problem import KnobModel, Problem
 from eha_health.identification.record import Record
@@ -54,3 +55,34 @@ def test_start_on_upper_bounds_is_accepted(leaky):
     for x in (x0, [0.3, 0.4, 1.5, 0.02 * 5e-12 + 1e-10 - 0.02 * 5e-12]):
         f = least_squares(Problem(m, res), x, max_nfev=1)
         assert np.all(f.x <= m.upper) and np.all(f.x >= m.lower)
+
+
+def test_a_trial_point_costs_one_run_and_its_jacobian_is_the_batched_one(leaky):
+    # a point TRF rejects needs no Jacobian: only the accepted ones get their perturbed rows, and
+    # those give the numbers of the batch that simulates the point with them (the fit is the same)
+    m, res, x0 = leaky
+    p = Problem(m, res)
+    x = np.array([0.25, 0.3, 0.12, 2e-12])
+    r, J, _ = jacobian(p, x)
+    r1, out, sim = residual(p, x)
+    assert np.array_equal(r1, r) and np.array_equal(jacobian_at(p, x, r1, sim), J)
+    history = []
+    f = least_squares(p, x0, history=history, max_nfev=25)
+    accepted = sum(h < min(history[:i]) for i, h in enumerate(history) if i)
+    n = len(p.free)
+    assert accepted < len(history) - 1          # the solver rejected some trials
+    # the start's batch, one run per trial, n per accepted point (+1: the output at the solution)
+    assert f.runs <= (n + 1) + (len(history) - 1) + n * accepted + 1 < (n + 1) * len(history)
+
+
+def test_a_recording_knobs_jacobian_column_reuses_the_trial_points_simulation(leaky):
+    m0, res, _ = leaky
+    m = KnobModel(m0.base, FAULT_KNOBS + BY_NAME["position_skew"].knobs, m0.record)
+    p = Problem(m, res)
+    x = np.array([0.25, 0.3, 0.12, 1e-3])
+    r, J, _ = jacobian(p, x)
+    runs = m.runs
+    r1, out, sim = residual(p, x)
+    J1 = jacobian_at(p, x, r1, sim)
+    assert np.array_equal(r1, r) and np.array_equal(J1, J)
+    assert m.runs - runs == 1 + 3            # the trial point, then the three fault columns only

@@ -1,4 +1,5 @@
-"""The one finite-difference Jacobian: every perturbed point in one parallel batch."""
+"""The one finite-difference Jacobian: every perturbed point in one parallel batch (with the base
+point, or after it when a fit evaluates trial points first)."""
 from __future__ import annotations
 
 import numpy as np
@@ -19,6 +20,33 @@ def fd_points(x: np.ndarray, free: np.ndarray, steps: np.ndarray, upper: np.ndar
     return X, h
 
 
+def residual(problem: Problem, x: np.ndarray):
+    """Residual, output and simulation (:meth:`~.problem.KnobModel.simulate`) at ``x``: one model
+    run, a trial point of a fit, whose Jacobian is needed only if the solver accepts it
+    (:func:`jacobian_at`)."""
+    m = problem.model
+    x = np.asarray(x, float)[None]
+    sim = m.simulate(x)
+    out = m.recorded(x, sim)[0]
+    return _finite(problem.objective(out)), out, sim[0]
+
+
+def jacobian_at(problem: Problem, x: np.ndarray, r: np.ndarray, sim: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """The forward-difference Jacobian at ``x`` whose residual ``r`` and simulation ``sim`` are
+    known (:func:`residual`): the perturbed rows only, one batch, a measurement-chain knob's row on
+    ``sim`` -- the same numbers as :func:`jacobian` (a row simulates alike alone or in a batch)."""
+    m = problem.model
+    X, h = fd_points(x, problem.free, m.steps[problem.free] * scale, m.upper)
+    if not len(h):
+        return np.zeros((len(r), 0))
+    rs = [_finite(problem.objective(o)) for o in m.run(X[1:], known=(x, sim))]
+    return np.column_stack([(rs[j] - r) / h[j] for j in range(len(h))])
+
+
+def _finite(r: np.ndarray) -> np.ndarray:
+    return np.nan_to_num(r, nan=BLOWUP, posinf=BLOWUP, neginf=-BLOWUP)
+
+
 def jacobian(problem: Problem, x: np.ndarray, scale: float = 1.0):
     """Residual, forward-difference Jacobian over the free knobs and output at ``x``.
 
@@ -27,7 +55,7 @@ def jacobian(problem: Problem, x: np.ndarray, scale: float = 1.0):
     m = problem.model
     X, h = fd_points(x, problem.free, m.steps[problem.free] * scale, m.upper)
     outs = m.run(X)
-    rs = [np.nan_to_num(problem.objective(o), nan=BLOWUP, posinf=BLOWUP, neginf=-BLOWUP) for o in outs]
+    rs = [_finite(problem.objective(o)) for o in outs]
     J = np.column_stack([(rs[j + 1] - rs[0]) / h[j] for j in range(len(h))]) if len(h) else \
         np.zeros((len(rs[0]), 0))
     return rs[0], J, outs[0]

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..physics.faults import FAULT_NAMES, Faults
+from ..physics.layout import N_OUT
 from ..physics.model import simulate_packed
 from ..physics.packing import pack
 from ..physics.params import ModelParams
@@ -123,17 +124,27 @@ class KnobModel:
     def packed(self, x) -> np.ndarray:
         return pack(*self.params_at(x))
 
-    def run(self, X, count: bool = True) -> np.ndarray:
+    def run(self, X, count: bool = True, known: tuple | None = None) -> np.ndarray:
         """Outputs ``[len(X), n, N_OUT]`` of the knob vectors ``X`` (rows), in parallel.
 
         Rows that differ only in measurement-chain knobs share one simulation (``runs`` counts
         simulations, unless ``count`` is False: a data check, not part of a fit): such a knob's
-        Jacobian column or grid scan costs no model run.
+        Jacobian column or grid scan costs no model run. ``known``: ``(x, simulation)`` of a point
+        simulated before (:meth:`simulate`), which rows with its model parameters reuse.
         """
+        X = np.atleast_2d(np.asarray(X, float))
+        return self.recorded(X, self.simulate(X, count, known))
+
+    def simulate(self, X, count: bool = True, known: tuple | None = None) -> np.ndarray:
+        """The model's outputs at the knob vectors ``X`` before their measurement-chain knobs act
+        (:meth:`recorded`), one simulation per distinct parameter set (see :meth:`run`)."""
         X = np.atleast_2d(np.asarray(X, float))
         P = np.stack([self.packed(x) for x in X])
         P_u, inverse = np.unique(P, axis=0, return_inverse=True)
-        self.runs += len(P_u) if count else 0
+        new = np.ones(len(P_u), bool)
+        if known is not None:
+            new &= ~np.all(P_u == self.packed(known[0]), axis=1)
+        self.runs += int(new.sum()) if count else 0
         cmd, load, n0 = self.record.command, self.record.load, 0
         if self.record.preroll is not None:
             n0 = len(self.record.preroll)
@@ -142,15 +153,24 @@ class KnobModel:
         m = self.oversample
         if m > 1:
             cmd, load = _upsampled(cmd, m), None if load is None else _upsampled(load, m)
-        outs = simulate_packed(P_u, cmd, load)[np.ravel(inverse), n0 * m::m]
+        sims = np.empty((len(P_u), len(self.record), N_OUT))
+        if new.any():
+            sims[new] = simulate_packed(P_u[new], cmd, load)[:, n0 * m::m]
+        if not new.all():
+            sims[~new] = known[1]
+        return sims[np.ravel(inverse)]
+
+    def recorded(self, X, sims: np.ndarray) -> np.ndarray:
+        """``sims`` (:meth:`simulate` of ``X``) through the measurement-chain knobs of each row."""
         rec = [(i, k) for i, k in enumerate(self.knobs) if k.recording]
         if rec:
             rate = self.record.sample_rate
-            for b, x in enumerate(X):
+            sims = sims.copy()
+            for b, x in enumerate(np.atleast_2d(np.asarray(X, float))):
                 for i, k in rec:
                     if x[i] != k.off:
-                        outs[b] = k.output(outs[b], float(x[i]), rate)
-        return outs
+                        sims[b] = k.output(sims[b], float(x[i]), rate)
+        return sims
 
     def extended(self, extra: tuple[Knob, ...]) -> "KnobModel":
         """The same base and record with further knobs (an added effect)."""
