@@ -27,7 +27,7 @@ def residual(problem: Problem, x: np.ndarray):
     m = problem.model
     x = np.asarray(x, float)[None]
     sim = m.simulate(x)
-    out = m.recorded(x, sim)[0]
+    out = m.recorded(x, sim.copy())[0]      # (recorded works in place: the simulation is kept)
     return _finite(problem.objective(out)), out, sim[0]
 
 
@@ -37,14 +37,17 @@ def jacobian_at(problem: Problem, x: np.ndarray, r: np.ndarray, sim: np.ndarray,
     ``sim`` -- the same numbers as :func:`jacobian` (a row simulates alike alone or in a batch)."""
     m = problem.model
     X, h = fd_points(x, problem.free, m.steps[problem.free] * scale, m.upper)
-    if not len(h):
-        return np.zeros((len(r), 0))
-    rs = [_finite(problem.objective(o)) for o in m.run(X[1:], known=(x, sim))]
-    return np.column_stack([(rs[j] - r) / h[j] for j in range(len(h))])
+    outs = m.run(X[1:], known=(x, sim)) if len(h) else []
+    return _differences(r, [_finite(problem.objective(o)) for o in outs], h)
 
 
 def _finite(r: np.ndarray) -> np.ndarray:
     return np.nan_to_num(r, nan=BLOWUP, posinf=BLOWUP, neginf=-BLOWUP)
+
+
+def _differences(r: np.ndarray, rs: list[np.ndarray], h: np.ndarray) -> np.ndarray:
+    """Forward differences ``(rs[j] - r) / h[j]`` as columns (none without free knobs)."""
+    return np.column_stack([(rj - r) / hj for rj, hj in zip(rs, h)]) if len(h) else np.zeros((len(r), 0))
 
 
 def jacobian(problem: Problem, x: np.ndarray, scale: float = 1.0):
@@ -56,6 +59,4 @@ def jacobian(problem: Problem, x: np.ndarray, scale: float = 1.0):
     X, h = fd_points(x, problem.free, m.steps[problem.free] * scale, m.upper)
     outs = m.run(X)
     rs = [_finite(problem.objective(o)) for o in outs]
-    J = np.column_stack([(rs[j + 1] - rs[0]) / h[j] for j in range(len(h))]) if len(h) else \
-        np.zeros((len(rs[0]), 0))
-    return rs[0], J, outs[0]
+    return rs[0], _differences(rs[0], rs[1:], h), outs[0]

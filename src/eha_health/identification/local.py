@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import time
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import optimize
@@ -25,6 +26,17 @@ from .result import FitResult
 #: Distance [in typical magnitudes] within which a solver coordinate is the start itself: scipy
 #: moves a start on a bound by 1e-10 of the solver variable; a real step is far larger.
 START_SNAP = 1e-9
+
+
+@dataclass
+class _Point:
+    """A point the solver evaluated: knobs, residual, output, the simulation before the
+    measurement-chain knobs (None when run in a Jacobian batch) and the Jacobian once asked for."""
+    x: np.ndarray
+    r: np.ndarray
+    out: np.ndarray
+    sim: np.ndarray | None = None
+    J: np.ndarray | None = None
 
 
 def least_squares(problem: Problem, x0, xtol: float = 1e-8, ftol: float = 1e-10, gtol: float = 1e-10,
@@ -65,27 +77,28 @@ def least_squares(problem: Problem, x0, xtol: float = 1e-8, ftol: float = 1e-10,
     # A trial point costs one run; its Jacobian (the perturbed rows) is simulated only when TRF
     # accepts it and asks: near a rough optimum most trials are rejected (measured on the
     # discrepancy loop's fits: 45-58 % of the points, each of which cost the whole batch).
-    def at(u, with_jacobian: bool):
+    def at(u, with_jacobian: bool) -> _Point:
         x, key = point(u)
         if key not in cache:
             cache.clear()
             if with_jacobian:
-                cache[key] = [x, *jacobian(problem, x), None]
+                r, J, out = jacobian(problem, x)
+                cache[key] = _Point(x, r, out, J=J)
             else:
-                r, out, sim = residual(problem, x)
-                cache[key] = [x, r, None, out, sim]
-        hit = cache[key]
-        if with_jacobian and hit[2] is None:
-            hit[2] = jacobian_at(problem, x, hit[1], hit[4])
-        return hit
+                cache[key] = _Point(x, *residual(problem, x))
+        p = cache[key]
+        if with_jacobian and p.J is None:
+            p.J = jacobian_at(problem, x, p.r, p.sim)
+        return p
 
     def fun(u):
-        r = at(u, False)[1]
+        r = at(u, False).r
         if history is not None:
             history.append(float(r @ r))
         return r
 
-    start = tuple(at(u0, True)[1:4])   # the exact start is the reference the result must not be worse than
+    s0 = at(u0, True)
+    start = (s0.r, s0.J, s0.out)   # the exact start is the reference the result must not be worse than
     with warnings.catch_warnings():
         # on a rough cost (stick-slip) TRF's trust-region arithmetic can divide by zero; the
         # outcome is checked below, so its RuntimeWarnings are noise on the user's terminal
@@ -93,14 +106,14 @@ def least_squares(problem: Problem, x0, xtol: float = 1e-8, ftol: float = 1e-10,
         # x0 lies within the bounds: rounding of (bound - origin) / scale must not put u0 outside
         lb = np.minimum((m.lower[free] - origin) / scale, u0)
         ub = np.maximum((m.upper[free] - origin) / scale, u0)
-        sol = optimize.least_squares(fun, u0, jac=lambda u: at(u, True)[2] * scale, bounds=(lb, ub),
+        sol = optimize.least_squares(fun, u0, jac=lambda u: at(u, True).J * scale, bounds=(lb, ub),
                                      method="trf", x_scale=1.0, xtol=xtol, ftol=ftol, gtol=gtol,
                                      max_nfev=max_nfev)
     x, key = point(sol.x)
     x = problem.clip(x)
     if key in cache:   # (TRF asks for the Jacobian of every point it accepts: J is there)
-        x, r, J, out, _ = cache[key]
-        J = sol.jac / scale if J is None else J
+        p = cache[key]
+        x, r, out, J = p.x, p.r, p.out, sol.jac / scale if p.J is None else p.J
     else:   # the last trial was rejected: scipy holds the residual and Jacobian at its solution
         r, J = sol.fun, sol.jac / scale
         out = m.run(x)[0] if output else None

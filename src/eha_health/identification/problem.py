@@ -161,11 +161,11 @@ class KnobModel:
         return sims[np.ravel(inverse)]
 
     def recorded(self, X, sims: np.ndarray) -> np.ndarray:
-        """``sims`` (:meth:`simulate` of ``X``) through the measurement-chain knobs of each row."""
+        """``sims`` (:meth:`simulate` of ``X``) through the measurement-chain knobs of each row, in
+        place (returned)."""
         rec = [(i, k) for i, k in enumerate(self.knobs) if k.recording]
         if rec:
             rate = self.record.sample_rate
-            sims = sims.copy()
             for b, x in enumerate(np.atleast_2d(np.asarray(X, float))):
                 for i, k in rec:
                     if x[i] != k.off:
