@@ -1,5 +1,6 @@
 """Discrepancy loop: residual analysis, attribution, augmentation, import, rig data (issue 5)."""
 import copy
+import dataclasses
 import json
 import subprocess
 import sys
@@ -340,20 +341,44 @@ def test_committed_noisy_bag_has_no_missing_effect():
     assert set(out["before"]["rms"]) == {"position", "velocity", "pressure", "current"}
 
 
-def test_an_fdi_test_without_a_channel_is_analysed_as_a_rig_and_says_why(tmp_path):
-    r = simulate(faults=Faults(0.2, 0.3, 0.1))
-    cols = ["t", "command", "position", "velocity", "pressure"]          # no current column
+def test_an_fdi_test_without_a_channel_is_still_an_fdi_analysis(tmp_path):
+    # a CSV without the current column, its pressure transducer 0.5 MPa off: the FDI loop on the
+    # three channels it has names the offset and gives the faults back; nothing acts on current
+    truth = Faults(0.3, 0.4, 0.3)
+    r = simulate(faults=truth, params=load("reference").with_effect_names(["sensor_noise"]), seed=11)
+    cols = ["t", "command", "position", "velocity", "pressure"]
+    data = np.column_stack([getattr(r, c) for c in cols])
+    data[:, 4] += 5e5
     csv = tmp_path / "no_current.csv"
-    np.savetxt(csv, np.column_stack([getattr(r, c) for c in cols]), delimiter=",", header=",".join(cols), comments="")
-    p = subprocess.run(CLI + ["discrepancy", str(csv), "--json", "--max-effects", "0"], capture_output=True, text=True,
-                       timeout=300, cwd=ROOT)
+    np.savetxt(csv, data, delimiter=",", header=",".join(cols), comments="")
+    p = subprocess.run(CLI + ["discrepancy", str(csv), "--json", "--max-effects", "1"], capture_output=True,
+                       text=True, timeout=600, cwd=ROOT)
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
-    assert out["mode"] == "rig" and out["mode_reason"] == "channel current is not in the record (no finite sample)"
-    assert "note: analysed as a rig record, not an FDI test: channel current is not in the record" in p.stderr
-    p = subprocess.run(CLI + ["discrepancy", str(csv), "--mode", "fdi"], capture_output=True, text=True, timeout=300,
-                       cwd=ROOT)
-    assert p.returncode == 2 and "channel current is not in the record" in p.stderr
+    assert out["mode"] == "fdi" and "mode_reason" not in out and out["not_recorded"] == ["current"]
+    assert "note: current not in the record" in p.stderr and "rig" not in p.stderr
+    assert set(out["before"]["rms"]) == {"position", "velocity", "pressure"}
+    assert out["selected"] == ["pressure_offset"]
+    assert not [c["name"] for c in out["candidates"] if c["name"].startswith("current_")]
+    assert max(abs(out["after"]["values"][n] - v) for n, v in truth.as_dict().items()) <= 0.03
+    assert abs(out["after"]["values"]["pressure_offset"] - 5e5) <= 0.05 * 5e5
+
+
+def test_a_record_whose_command_is_not_the_fdi_sequence_is_a_rig_record():
+    from eha_health.cli.analysis import discrepancy_mode
+    r = simulate(faults=Faults(0.2, 0.3, 0.1))
+    assert discrepancy_mode(r) == ("fdi", "")
+    t = np.asarray(r.t)
+    chirp = 2e-3 * np.sin(2 * np.pi * (0.5 + 2.0 * t) * t)          # a rig's chirp over the same 3.5 s
+    mode, why = discrepancy_mode(dataclasses.replace(r, command=chirp))
+    assert mode == "rig" and why.startswith("its command is not the FDI sequence (RMS difference from it ")
+    # a late command (3 ms) or a clock 1 % fast is still the FDI test: the loop names them
+    late = np.interp(t - 3e-3, t, r.command)
+    assert discrepancy_mode(dataclasses.replace(r, command=late))[0] == "fdi"
+    assert discrepancy_mode(dataclasses.replace(r, command=np.interp(t * 1.01, t, r.command)))[0] == "fdi"
+    # the FDI sequence's command in a record cut short is an FDI test that cannot be analysed, not a rig's
+    with pytest.raises(ValueError, match=r"record covers 3\.000 s but the FDI sequence lasts 3\.5 s"):
+        discrepancy_mode(r.sliced(slice(0, 3000)))
 
 
 # ----------------------------------------------------------------------------- import
@@ -452,7 +477,7 @@ def test_real_rig_import_and_loop(tmp_path):
     assert p.returncode == 0, p.stderr
     out = _cli_json("discrepancy", str(csv), "--json", timeout=900)
     assert out["mode"] == "rig"
-    assert out["mode_reason"] == "channel velocity is not in the record (no finite sample)"   # why not fdi
+    assert out["mode_reason"].startswith("its command is not the FDI sequence (RMS difference from it 10")
     bag = tmp_path / "mts.mcap"     # the same record through the MCAP topic contract reads back the same
     p = subprocess.run(CLI + ["import", str(MTS), "--map", str(ROOT / "maps/mts_servohydraulic.yaml"),
                               "--out", str(bag)], capture_output=True, text=True, cwd=ROOT)

@@ -227,6 +227,24 @@ def test_bench_reports_how_honest_the_error_bars_are_after_the_loop():
     assert "error / stated standard error after" in format_synthetic(res)
 
 
+def test_bench_without_a_channel_leaves_it_out_of_every_record_and_its_effects_out_of_the_cases():
+    """`bench discrepancy --without current`, for real on one case: the effect is found on the channels
+    left; the recording effects on current only are not cases; position cannot be left out."""
+    from eha_health.bench.discrepancy import format_synthetic, observable, synthetic
+    from eha_health.physics.faults import Faults
+    assert not observable("current_offset", ("position", "velocity", "pressure"))
+    assert observable("current_offset", ("position", "current")) and observable("compressibility", ("position",))
+    assert observable("command_skew", ("position",))
+    res = synthetic(seed=3, n_noise=0, effects=("pressure_offset", "current_offset"),
+                    fault_sets=(Faults(0.3, 0.4, 0.3),), two_effects=False, without=("current",))
+    (case,) = res["cases"]
+    assert case["effect"] == "pressure_offset" and case["selected"] == ["pressure_offset"]
+    assert case["channels"] == ["pressure"] and case["err_after"] <= 0.03
+    assert res["without"] == ["current"] and "records without current" in format_synthetic(res)
+    with pytest.raises(ValueError, match="cannot leave out channel 'position'"):
+        synthetic(n_noise=0, effects=("pressure_offset",), without=("position",))
+
+
 def test_cleaning_excludes_what_carries_no_information_and_removes_a_stationary_line():
     """Against the model: spikes, clipped samples and frozen runs are excluded (and filled from the
     model), a stationary 60 Hz line is removed with its frequency and amplitude; a burst at the same

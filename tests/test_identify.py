@@ -1,4 +1,5 @@
 """Identification with the real optimizers on real reference simulations."""
+import dataclasses
 import json
 import subprocess
 import sys
@@ -492,6 +493,35 @@ def test_a_logger_started_before_the_test_is_cut_where_the_command_starts_the_se
     # a few milliseconds is a skew of the command channel, not a test in the wrong place: diagnosed as it is
     skewed = Response(**{k: (v[295:] - v[295] if k == "t" else v[295:]) for k, v in cols.items()})
     assert diagnose(skewed).faults is not None
+
+
+def test_a_record_on_an_absolute_clock_is_counted_from_its_first_sample(tmp_path):
+    """A logger that writes Unix time (1.7e9 s, to the microsecond): the stamps' float rounding
+    (2.4e-7 s there) made the sample rate 1000.07 Hz, which no integration step divides, and the
+    record did not start at t = 0. The library refuses it, naming the start; the CLI counts t from the
+    first sample on the uniform grid the stamps round to, says so, and diagnoses it as from t = 0."""
+    from eha_health.identification.record import from_zero
+    r = simulate(params=load("reference").with_effect_names(["sensor_noise"]), faults=Faults(0.3, 0.4, 0.3), seed=5)
+    cols = ("t", "command", "position", "velocity", "pressure", "current")
+    data = np.column_stack([getattr(r, c) for c in cols])
+    zero, unix = tmp_path / "zero.csv", tmp_path / "unix.csv"
+    np.savetxt(zero, data, delimiter=",", header=",".join(cols), comments="", fmt="%.10g")
+    data[:, 0] += 1.7e9
+    np.savetxt(unix, data, delimiter=",", header=",".join(cols), comments="", fmt=["%.6f"] + ["%.10g"] * 5)
+    from eha_health.signals.response import Response
+    t = Response.from_csv(unix, required=("t", "command")).t
+    assert abs(1.0 / np.median(np.diff(t)) - 1000.0) > 1e-3          # the rounding the test is about
+    assert np.array_equal(from_zero(t), np.arange(len(t)) / 1000.0)
+    jittered = np.arange(3500) / 1000.0 + 5.0 + np.random.default_rng(0).normal(0.0, 1e-6, 3500)
+    assert np.array_equal(from_zero(jittered), jittered - jittered[0])   # real jitter is not smoothed away
+    with pytest.raises(ValueError, match=r"record starts at t=1\.7e\+09 s"):
+        diagnose(dataclasses.replace(r, t=r.t + 1.7e9))
+    a, b = _cli("diagnose", str(zero), "--json"), _cli("diagnose", str(unix), "--json")
+    assert a.returncode == 0 and b.returncode == 0, b.stderr
+    assert "the record's time starts at t = 1700000000 s (an absolute clock?): t counted from its first sample" \
+        in b.stderr
+    da, db = json.loads(a.stdout), json.loads(b.stdout)
+    assert [da[k] for k in ("k_gm", "k_fsj", "k_bkl")] == [db[k] for k in ("k_gm", "k_fsj", "k_bkl")]
 
 
 def test_a_record_without_some_channels_is_diagnosed_from_the_others(tmp_path):

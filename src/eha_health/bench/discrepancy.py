@@ -10,6 +10,7 @@
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import numpy as np
@@ -125,32 +126,51 @@ TWO_EFFECTS = (
 )
 
 
+def observable(name: str, recorded: tuple[str, ...]) -> bool:
+    """Whether a record of the channels ``recorded`` can show candidate ``name``: an in-loop effect
+    moves the actuator (position is always recorded); a recording effect needs a channel it acts on."""
+    chans = BY_NAME[name].recorded
+    return not chans or bool(set(chans) & set(recorded))
+
+
 def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, fault_sets=FAULT_SETS,
-              two_effects: bool = True) -> dict:
+              two_effects: bool = True, without: tuple[str, ...] = ()) -> dict:
     """Run the loop on every effect x fault set (in-loop effects in the plant, recording effects
-    altered after the test), on two-effect cases and on noise-only runs."""
+    altered after the test), on two-effect cases and on noise-only runs.
+
+    ``without``: measured channels left out of every record (all NaN, as a CSV without the column
+    reads), and the cases of recording effects on them only; position cannot be left out (the
+    discrepancy command requires it)."""
+    bad = [c for c in without if c not in MEASURED or c == "position"]
+    if bad:
+        raise ValueError(f"cannot leave out channel {bad[0]!r}: the channels that may be missing are "
+                         f"{', '.join(c for c in MEASURED if c != 'position')}")
+    recorded = tuple(c for c in MEASURED if c not in without)
     cases = []
     ref = load("reference")
     rng = np.random.default_rng(seed)
-    keep = (lambda n: True) if effects is None else (lambda n: n in effects)
+    keep = (lambda n: observable(n, recorded)) if effects is None else \
+        (lambda n: n in effects and observable(n, recorded))
     todo = [((name,), make, None, f) for name, make in EFFECTS if keep(name) for f in fault_sets]
     todo += [((name,), (lambda p: p), alter, f) for name, alter in recording_alterations() if keep(name)
              for f in fault_sets]
     if two_effects:
         todo += [(names, make, alter, Faults(0.3, 0.4, 0.3)) for names, make, alter in TWO_EFFECTS
-                 if effects is None or set(names) & set(effects)]
+                 if (effects is None or set(names) & set(effects)) and all(observable(n, recorded) for n in names)]
     todo += [((), (lambda p: p), None, Faults(*rng.uniform(0.0, 1.0, 3))) for _ in range(n_noise)]
     for i, (names, make, alter, f) in enumerate(todo):
         p: ModelParams = make(ref).with_effect_names(["sensor_noise"])
         r = simulate(params=p, faults=f, seed=seed + 100 + i)
         if alter is not None:
             r = alter(r)
+        if without:
+            r = dataclasses.replace(r, **{c: np.full(len(r.t), np.nan) for c in without})
         truth = f.as_dict()
         t0 = time.perf_counter()
         rep = analyse_fdi_test(r, max_effects=max(len(names), 1), truth=truth)
         # the channels an effect acts on (an in-loop one: position; a recording one: those it changes)
         chans = {c for n in names for c in (BY_NAME[n].recorded or ("position",))}
-        chans = [c for c in MEASURED if c in chans] or ["position"]
+        chans = [c for c in recorded if c in chans] or ["position"]
         cases.append({
             "effect": "+".join(names) or None, "effects": list(names), "faults": truth, "selected": rep.selected,
             "verdict": rep.verdict, "ranked_first": rep.candidates[0].name if rep.candidates else None,
@@ -177,7 +197,9 @@ def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, faul
                      f"{c['ranked_first']}; {ch} held-out excess {c['excess_held_before'][ch]:.3g} -> "
                      f"{c['excess_held_after'][ch]:.3g}; max|dK| {c['err_before']:.4f} -> {c['err_after']:.4f}; "
                      f"{c['runs']} runs, {c['wall_time_s']:.1f} s")
-    return summarise(cases, seed)
+    res = summarise(cases, seed)
+    res["without"] = list(without)
+    return res
 
 
 def summarise(cases: list[dict], seed: int) -> dict:
@@ -276,6 +298,8 @@ def format_synthetic(res: dict) -> str:
                      f"   {c['err_before']:9.4f} -> {c['err_after']:7.4f} {c['runs']:5d} {c['wall_time_s']:7.1f}")
     pct = lambda v: "-" if v is None else f"{100 * v:.0f} %"   # noqa: E731
     w = res["wall_time_s"] or {"min": 0, "median": 0, "max": 0}
+    if res.get("without"):
+        lines.append(f"records without {', '.join(res['without'])} (the recording effects on it left out)")
     lines.append(f"true effect ranked first: {pct(res['ranked_first_share'])} (target >= 95 %); "
                  f"selected: {pct(res['selected_share'])} (target >= 90 %); selected or named as equally "
                  f"supported: {pct(res.get('named_share'))}; two effects both found: "

@@ -45,24 +45,35 @@ def cmd_diagnose(args) -> int:
     return 0
 
 
-def check_fdi_test(r) -> None:
-    """``ValueError`` unless ``r`` is a whole FDI test with every channel: the FDI loop compares every
-    channel (``diagnose`` takes fewer; a record without some is analysed as a rig's)."""
-    from ..identification.record import Record, check_fdi
+def check_fdi_test(r):
+    """The record of ``r`` as a whole FDI test (``ValueError`` naming why it is not): from t = 0 over
+    the whole sequence, with the measured channels it holds (position at least: the CLI requires it)."""
+    from ..identification.record import fdi_record
     from ..physics.sequence import FDISequence
-    from ..signals.channels import MEASURED
-    check_fdi(Record.from_response(r, MEASURED), FDISequence())
+    return fdi_record(r, FDISequence())
 
 
 def discrepancy_mode(r) -> tuple[str, str]:
-    """("fdi", "") when ``r`` is a whole FDI test with every channel, else ("rig", why it is not)."""
-    from ..identification.record import LaterStart
+    """("fdi", "") when ``r`` is a whole FDI test -- from t = 0 over the whole sequence, its command
+    the FDI sequence's (:data:`~eha_health.identification.record.FDI_COMMAND_MATCH`), whichever
+    measured channels it holds -- ("rig", why it is not) when its command is another; ``ValueError``
+    (the check's) for an FDI command in a record that is not a whole test (too short, some NaN)."""
+    from ..identification.record import FDI_COMMAND_MATCH, LaterStart, command_mismatch
+    from ..physics.sequence import FDISequence
     try:
         check_fdi_test(r)
+        problem = None
     except LaterStart:
         raise           # an FDI test in the wrong place is not a rig record: the message says where it starts
     except ValueError as e:
-        return "rig", str(e)
+        problem = e
+    off = command_mismatch(np.asarray(r.t, float), r.command, FDISequence())
+    if off > FDI_COMMAND_MATCH:
+        return "rig", (f"its command is not the FDI sequence (RMS difference from it {100 * off:.0f} % of the "
+                       f"sequence's RMS; an FDI test is within {100 * FDI_COMMAND_MATCH:.0f} %)")
+    if problem is not None:
+        # the FDI sequence's command: an FDI test that cannot be analysed as it is, not a rig record
+        raise problem
     return "fdi", ""
 
 
@@ -81,6 +92,13 @@ def cmd_discrepancy(args) -> int:
     if why:
         # say it: a user who meant an FDI test should not have to guess why the faults are missing
         print(f"note: analysed as a rig record, not an FDI test: {why}", file=sys.stderr)
+    from ..identification.record import recorded
+    from ..signals.channels import MEASURED
+    missing = [c for c in MEASURED if c not in recorded(r)] if mode == "fdi" else []
+    if missing:
+        print(f"note: {', '.join(missing)} not in the record: the loop compares the channels it holds "
+              f"and leaves out the candidates that act on {'it' if len(missing) == 1 else 'them'} only",
+              file=sys.stderr)
     prog = progress(args)
     if mode == "fdi":
         rep = analyse_fdi_test(r, max_effects=args.max_effects, seed=args.seed, truth=truth, progress=prog)
@@ -95,6 +113,8 @@ def cmd_discrepancy(args) -> int:
         out["mode"] = mode
         if why:
             out["mode_reason"] = why
+        if missing:
+            out["not_recorded"] = missing
         out["source"] = str(path)
         if truth is not None:
             out["truth"] = truth
@@ -155,8 +175,8 @@ def register(sub) -> None:
     dc.add_argument("--max-effects", type=int, default=2, help="most effects to add (default 2)")
     dc.add_argument("--mode", choices=("auto", "fdi", "rig"), default="auto",
                     help="fdi: an FDI test of the shipped EHA (faults re-identified); rig: calibrate the "
-                         "nominal loop to a measured rig first (auto: fdi when all channels and the FDI "
-                         "sequence are there)")
+                         "nominal loop to a measured rig first (auto: fdi when the record is a whole FDI "
+                         "test -- t from 0, the FDI sequence's command -- whichever channels it holds)")
     dc.add_argument("--fit-fraction", type=float, default=0.7, help="rig: share of the record fitted (rest held out)")
     dc.add_argument("--plot", help="PNG: residuals before and after, and the candidate ranking")
     dc.set_defaults(func=cmd_discrepancy)

@@ -49,7 +49,8 @@ def bench_discrepancy(args) -> int:
     if not 1 <= args.fault_sets <= len(FAULT_SETS):
         raise UsageError(f"--fault-sets must be within 1..{len(FAULT_SETS)}")
     res = synthetic(seed=args.seed or 0, n_noise=args.random or 6, progress=progress(args), effects=effects,
-                    fault_sets=FAULT_SETS[:args.fault_sets], two_effects=not args.no_two)
+                    fault_sets=FAULT_SETS[:args.fault_sets], two_effects=not args.no_two,
+                    without=tuple(c for c in args.without.split(",") if c))
     if args.write_fault_error:
         from ..bench.discrepancy import all_found, fault_error_sd, fault_error_yaml
         from ..discrepancy.settings import fdi_settings
@@ -223,6 +224,9 @@ def register(sub) -> None:
     b.add_argument("--fault-sets", type=int, default=3, metavar="N",
                    help="discrepancy: the first N fault sets (0,0,0), (0.4,0.5,0), (0.3,0.4,0.3)")
     b.add_argument("--no-two", action="store_true", help="discrepancy: skip the two-effect cases")
+    b.add_argument("--without", default="", metavar="CHANNEL[,CHANNEL]",
+                   help="discrepancy: records without these measured channels (velocity, pressure, current), "
+                        "as a CSV without their columns")
     b.add_argument("--write-fault-error", metavar="YAML",
                    help="discrepancy: write the fault coefficients' measured error with effects in the model "
                         "(fault_error_sd) into the settings file, e.g. src/eha_health/data/discrepancy.yaml")

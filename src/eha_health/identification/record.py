@@ -105,6 +105,25 @@ class Record:
 LATER_START_GAIN, LATER_START_MATCH, LATER_START_MIN_S = 10.0, 0.05, 0.02
 
 
+#: A recorded command within this share of the sequence's RMS of it (RMS of the difference, from
+#: t = 0) is the FDI sequence [-]. Measured: a recorded FDI command 0; the same 3 ms late 0.08, on a
+#: clock 1 % fast 0.34; the MTS rig's chirp 1.02 (an unrelated signal of like size reads ~1.4)
+FDI_COMMAND_MATCH = 0.5
+
+
+def command_mismatch(t: np.ndarray, command: np.ndarray, sequence: FDISequence) -> float:
+    """RMS of (recorded command - ``sequence``'s command) from t = 0 over the sequence's length (the
+    record's, if shorter), over the RMS of the sequence's command there [-]; inf where the command is
+    not finite there."""
+    rate = 1.0 / float(np.median(np.diff(t)))
+    u = sequence.command(sequence.times(rate))
+    c = np.asarray(command, float)
+    n = min(len(c), len(u))
+    if not np.isfinite(c[:n]).all():
+        return float("inf")
+    return float(np.sqrt(np.mean((c[:n] - u[:n]) ** 2) / max(float(np.mean(u[:n] ** 2)), 1e-300)))
+
+
 class LaterStart(ValueError):
     """The FDI test starts later in the record than t = 0 (the message says where, and what to do)."""
 
@@ -147,28 +166,55 @@ def check_fdi(record: Record, sequence: FDISequence) -> None:
                          f"t = {start:.4g} s and subtract {start:.4g} s from t (the CLI does it, and says so)")
 
 
+def from_zero(t: np.ndarray) -> np.ndarray:
+    """``t - t[0]`` [s]; put on a uniform grid when the stamps are uniform within the float rounding
+    of their magnitude -- absolute clock stamps (Unix time: 2.4e-7 s at 1.7e9 s) would otherwise give
+    a sample rate off by parts in 1e4, which no integration step divides -- its rate rounded to the
+    mHz where the record's span cannot tell it from that."""
+    t = np.asarray(t, float)
+    rel = t - t[0]
+    n, span = len(t), float(rel[-1])
+    res = 4.0 * float(np.spacing(np.max(np.abs(t))))
+    if n < 3 or span <= 0 or np.max(np.abs(rel - np.arange(n) * (span / (n - 1)))) > res:
+        return rel      # uniform to the last bit already, or real jitter: Record.from_response judges it
+    rate = (n - 1) / span
+    if abs(round(rate, 3) - rate) <= 2.0 * res / span * rate:
+        rate = round(rate, 3)
+    return np.arange(n) / rate
+
+
 def from_test_start(response: Response, sequence: FDISequence | None = None) -> tuple[Response, str | None]:
     """``response`` cut where its command shows ``sequence`` starting (:func:`later_start`), t from 0
-    there, and a note saying so; unchanged and None when it starts at the first sample."""
+    there, and a note saying so; t counted from the first sample, and a note, when it starts
+    elsewhere (a logger's absolute clock: :func:`from_zero`); unchanged and None when it starts at 0."""
     seq = sequence or FDISequence()
     t = np.asarray(response.t, float)
     if len(t) < 2 or not (np.diff(t) > 0).all():
         return response, None           # Record.from_response names the problem
     late = later_start(t, response.command, seq)
     if late is None:
-        return response, None
+        if abs(t[0]) <= 0.5 * float(np.median(np.diff(t))):
+            return response, None
+        return replace(response, t=from_zero(t)), (
+            f"the record's time starts at t = {t[0]:.10g} s (an absolute clock?): t counted from its first sample")
     k, err0 = late
     cut = response.sliced(slice(k, None))
-    return replace(cut, t=cut.t - cut.t[0]), (
+    return replace(cut, t=from_zero(cut.t)), (
         f"the FDI test starts at t = {t[k] - t[0]:.4g} s of the record (its command matches the sequence from "
         f"there; from t = 0 it is {1e3 * err0:.3g} mm RMS off): the {k} samples before it were dropped and t "
         f"counted from there")
 
 
+def recorded(response: Response) -> tuple[str, ...]:
+    """The measured channels ``response`` holds: those with a finite sample (a CSV without the
+    column, or a bag without the topic, reads all NaN)."""
+    return tuple(c for c in MEASURED if getattr(response, c, None) is not None
+                 and np.isfinite(np.asarray(getattr(response, c), float)).any())
+
+
 def fdi_record(response: Response, sequence: FDISequence) -> Record:
     """The record of an FDI test, checked against ``sequence``: the measured channels it holds (one
     that is all NaN was not recorded; one with some NaN samples is refused, naming them)."""
-    recorded = tuple(c for c in MEASURED if np.isfinite(np.asarray(getattr(response, c), float)).any())
-    rec = Record.from_response(response, recorded or MEASURED)
+    rec = Record.from_response(response, recorded(response) or MEASURED)
     check_fdi(rec, sequence)
     return rec
