@@ -104,7 +104,7 @@ def bags(tmp_path_factory, run):
 
 
 @pytest.mark.parametrize("name, phrase", list(CASES.items()) + [
-    ("no_pressure", "missing topic eha/pressure"), ("truncated", "cut off"), ("corrupt", "damaged"),
+    ("truncated", "cut off"), ("corrupt", "damaged"),
     ("noise", "not an MCAP file"), ("absent", "no such file")])
 def test_diagnose_refuses_a_bad_bag_in_one_line(bags, tmp_path, capsys, name, phrase):
     path = bags.get(name, tmp_path / "absent.mcap")
@@ -113,6 +113,16 @@ def test_diagnose_refuses_a_bad_bag_in_one_line(bags, tmp_path, capsys, name, ph
     assert rc == 2, err
     assert len(err.splitlines()) == 1, err
     assert phrase in err and str(path) in err, err
+
+
+def test_diagnose_takes_a_bag_without_a_channels_topic_as_a_csv_without_its_column(bags, capsys):
+    """No eha/pressure topic: the channels it has are diagnosed (as a CSV without the pressure column
+    is), and the diagnosis says pressure was not recorded (refused whole until 2026-11-27)."""
+    import json
+    assert cli.main(["diagnose", str(bags["no_pressure"]), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert "pressure" not in out["rms"] and {"position", "velocity", "current"} <= set(out["rms"])
+    assert any("pressure" in w and "not recorded" in w for w in out["warnings"]), out["warnings"]
 
 
 def test_diagnose_reads_a_good_bag_with_its_truth(bags, capsys):

@@ -524,6 +524,29 @@ def test_a_record_on_an_absolute_clock_is_counted_from_its_first_sample(tmp_path
     assert [da[k] for k in ("k_gm", "k_fsj", "k_bkl")] == [db[k] for k in ("k_gm", "k_fsj", "k_bkl")]
 
 
+def test_a_bag_without_a_channels_topic_is_diagnosed_as_its_csv_is(tmp_path):
+    """A rig logging command, position, velocity and pressure, imported to MCAP (no eha/current topic):
+    `diagnose` refused the bag (the full topic contract) while it diagnosed the same CSV; it now reads
+    the bag as a record and gives the CSV's coefficients, to the last bit."""
+    import yaml
+    r = simulate(params=load("reference").with_effect_names(["sensor_noise"]), faults=Faults(0.3, 0.4, 0.3), seed=5)
+    cols = ("t", "command", "position", "velocity", "pressure")
+    csv, bag, m = tmp_path / "no_current.csv", tmp_path / "no_current.mcap", tmp_path / "map.yaml"
+    np.savetxt(csv, np.column_stack([getattr(r, c) for c in cols]), delimiter=",", header=",".join(cols),
+               comments="", fmt="%.10g")
+    m.write_text(yaml.safe_dump({"delimiter": ",", "skip_rows": 1, "header_row": 0, "sample_rate": 1000.0,
+                                 "channels": {c: {"column": c, "unit": u} for c, u in
+                                              (("command", "m"), ("position", "m"), ("velocity", "m/s"),
+                                               ("pressure", "Pa"))}}))
+    p = _cli("import", str(csv), "--map", str(m), "--out", str(bag))
+    assert p.returncode == 0, p.stderr
+    a, b = _cli("diagnose", str(csv), "--json"), _cli("diagnose", str(bag), "--json")
+    assert a.returncode == 0 and b.returncode == 0, b.stderr
+    da, db = json.loads(a.stdout), json.loads(b.stdout)
+    assert set(db["rms"]) == {"position", "velocity", "pressure"}
+    assert [da[k] for k in ("k_gm", "k_fsj", "k_bkl")] == [db[k] for k in ("k_gm", "k_fsj", "k_bkl")]
+
+
 def test_a_record_without_some_channels_is_diagnosed_from_the_others(tmp_path):
     """A rig that records no pressure and no current: the CSV lacks the columns. The stage objectives
     cannot see K_FSJ (the ramp pressure), so the GA fits the whole test on position and velocity; the

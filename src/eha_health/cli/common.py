@@ -99,18 +99,20 @@ def params_from(args, kind: str):
 
 
 def load_test(path: Path, test_id: int | None):
-    """:func:`load_run` of a test to diagnose: an MCAP bag's whole window, a CSV's ``t`` and ``command``
-    and whichever measured columns it has (the diagnosis names those it lacks)."""
-    return load_run(path, test_id, None if path.suffix.lower() == ".mcap" else ("t", "command"))
+    """:func:`load_run` of a test to diagnose: an MCAP bag's window (one without a measured channel's
+    topic read as a record), a CSV's ``t`` and ``command`` and whichever measured columns it has (the
+    diagnosis names those it lacks)."""
+    return load_run(path, test_id, None if path.suffix.lower() == ".mcap" else ("t", "command"), partial=True)
 
 
-def load_run(path: Path, test_id: int | None, required: tuple[str, ...] | None = None):
-    """(response, truth or None, notes) from a CSV (columns ``required``, default all) or an MCAP bag."""
+def load_run(path: Path, test_id: int | None, required: tuple[str, ...] | None = None, partial: bool = False):
+    """(response, truth or None, notes) from a CSV (columns ``required``, default all) or an MCAP bag
+    (``partial``: :func:`~eha_health.io.bagrun.read_run`'s)."""
     from ..signals.response import Response
     if path.suffix.lower() == ".mcap":
         from ..io.bagrun import read_run, truth_values
         # fewer required channels: a measured record (e.g. a rig with command and position only)
-        run = read_run(path, test_id, record=required is not None)
+        run = read_run(path, test_id, record=required is not None, partial=partial)
         return run.response, truth_values(run.truth), run.notes
     if test_id is not None:
         raise UsageError("--test applies to MCAP bags only")

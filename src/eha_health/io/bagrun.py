@@ -184,17 +184,22 @@ def complete_windows(bag: Bag, topic: str | None) -> dict[int, dict]:
 
 
 def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence | None = None,
-             namespace: str | None = None, record: bool = False) -> Run:
+             namespace: str | None = None, record: bool = False, partial: bool = False) -> Run:
     """The response of one test window of the bag at ``path``.
 
     ``test_id`` picks a window by its id; default the first complete one. A bag
     without window marks is taken whole (first to last command sample). ``record``:
     a measured rig record, which needs only command and joint state (position); the
     channels it lacks come out all NaN, a load force becomes ``Response.load``.
+    ``partial``: a test to diagnose, read as a record when the bag lacks a measured
+    channel's topic (the diagnosis takes the channels it has and checks the FDI test);
+    a bag with every topic is read to the full contract.
     Raises ``BagError`` / ``WindowError`` (both ``ValueError``) naming the problem.
     """
     scan = scan_bag(path)  # one pass; topics decoded below (all at once where their layout allows)
     names = resolve_topics(scan.bag.types, path, namespace)
+    if partial and not record and any(t.name not in names for t in SIGNALS):
+        record = True
     needed = C.RECORD_INPUTS if record else SIGNALS
     missing = [t.name for t in needed if t.name not in names]
     if missing:
