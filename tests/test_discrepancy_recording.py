@@ -230,11 +230,12 @@ def test_bench_reports_how_honest_the_error_bars_are_after_the_loop():
 def test_bench_without_a_channel_leaves_it_out_of_every_record_and_its_effects_out_of_the_cases():
     """`bench discrepancy --without current`, for real on one case: the effect is found on the channels
     left; the recording effects on current only are not cases; position cannot be left out."""
-    from eha_health.bench.discrepancy import format_synthetic, observable, synthetic
+    from eha_health.bench.discrepancy import format_synthetic, synthetic
     from eha_health.physics.faults import Faults
-    assert not observable("current_offset", ("position", "velocity", "pressure"))
-    assert observable("current_offset", ("position", "current")) and observable("compressibility", ("position",))
-    assert observable("command_skew", ("position",))
+    assert not BY_NAME["current_offset"].applies_to(("position", "velocity", "pressure"))
+    assert BY_NAME["current_offset"].applies_to(("position", "current"))
+    assert BY_NAME["compressibility"].applies_to(("position",))
+    assert BY_NAME["command_skew"].applies_to(("position",))
     res = synthetic(seed=3, n_noise=0, effects=("pressure_offset", "current_offset"),
                     fault_sets=(Faults(0.3, 0.4, 0.3),), two_effects=False, without=("current",))
     (case,) = res["cases"]

@@ -126,13 +126,6 @@ TWO_EFFECTS = (
 )
 
 
-def observable(name: str, recorded: tuple[str, ...]) -> bool:
-    """Whether a record of the channels ``recorded`` can show candidate ``name``: an in-loop effect
-    moves the actuator (position is always recorded); a recording effect needs a channel it acts on."""
-    chans = BY_NAME[name].recorded
-    return not chans or bool(set(chans) & set(recorded))
-
-
 def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, fault_sets=FAULT_SETS,
               two_effects: bool = True, without: tuple[str, ...] = ()) -> dict:
     """Run the loop on every effect x fault set (in-loop effects in the plant, recording effects
@@ -149,14 +142,15 @@ def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, faul
     cases = []
     ref = load("reference")
     rng = np.random.default_rng(seed)
-    keep = (lambda n: observable(n, recorded)) if effects is None else \
-        (lambda n: n in effects and observable(n, recorded))
+    # a case only where the loop offers its candidate on these channels (Candidate.applies_to)
+    keep = lambda n: (effects is None or n in effects) and BY_NAME[n].applies_to(recorded)   # noqa: E731
     todo = [((name,), make, None, f) for name, make in EFFECTS if keep(name) for f in fault_sets]
     todo += [((name,), (lambda p: p), alter, f) for name, alter in recording_alterations() if keep(name)
              for f in fault_sets]
     if two_effects:
         todo += [(names, make, alter, Faults(0.3, 0.4, 0.3)) for names, make, alter in TWO_EFFECTS
-                 if (effects is None or set(names) & set(effects)) and all(observable(n, recorded) for n in names)]
+                 if (effects is None or set(names) & set(effects))
+                 and all(BY_NAME[n].applies_to(recorded) for n in names)]
     todo += [((), (lambda p: p), None, Faults(*rng.uniform(0.0, 1.0, 3))) for _ in range(n_noise)]
     for i, (names, make, alter, f) in enumerate(todo):
         p: ModelParams = make(ref).with_effect_names(["sensor_noise"])

@@ -94,7 +94,8 @@ def cmd_discrepancy(args) -> int:
         print(f"note: analysed as a rig record, not an FDI test: {why}", file=sys.stderr)
     from ..identification.record import recorded
     from ..signals.channels import MEASURED
-    missing = [c for c in MEASURED if c not in recorded(r)] if mode == "fdi" else []
+    held = recorded(r)
+    missing = [c for c in MEASURED if c not in held] if mode == "fdi" else []
     if missing:
         print(f"note: {', '.join(missing)} not in the record: the loop compares the channels it holds "
               f"and leaves out the candidates that act on {'it' if len(missing) == 1 else 'them'} only",

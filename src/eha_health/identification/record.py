@@ -111,12 +111,16 @@ LATER_START_GAIN, LATER_START_MATCH, LATER_START_MIN_S = 10.0, 0.05, 0.02
 FDI_COMMAND_MATCH = 0.5
 
 
+def _sequence_command(t: np.ndarray, sequence: FDISequence) -> np.ndarray:
+    """``sequence``'s command [m] sampled at the record's median rate from t = 0."""
+    return sequence.command(sequence.times(1.0 / float(np.median(np.diff(t)))))
+
+
 def command_mismatch(t: np.ndarray, command: np.ndarray, sequence: FDISequence) -> float:
     """RMS of (recorded command - ``sequence``'s command) from t = 0 over the sequence's length (the
     record's, if shorter), over the RMS of the sequence's command there [-]; inf where the command is
     not finite there."""
-    rate = 1.0 / float(np.median(np.diff(t)))
-    u = sequence.command(sequence.times(rate))
+    u = _sequence_command(t, sequence)
     c = np.asarray(command, float)
     n = min(len(c), len(u))
     if not np.isfinite(c[:n]).all():
@@ -137,7 +141,7 @@ def later_start(t: np.ndarray, command: np.ndarray, sequence: FDISequence) -> tu
     c = np.asarray(command, float)
     if len(c) <= round(sequence.duration * rate) or not np.isfinite(c).all():
         return None                     # (checked first: no sequence longer than the record is built)
-    u = sequence.command(sequence.times(rate))
+    u = _sequence_command(t, sequence)
     n = len(u)
     # sum over the window of (c - u)^2 for every start k: sum c^2 (cumulative) - 2 c.u (correlation) + sum u^2
     c2 = np.concatenate([[0.0], np.cumsum(c * c)])
