@@ -456,7 +456,8 @@ def run_loop(record: Record, params: ModelParams | None = None, base_knobs: tupl
     if bound:
         verdict += " (" + "; ".join(f"{k.name} on its bound {v:.4g}" for k, v in bound) + \
             ": the effect is beyond the candidate's range, the coefficients with it are not to be trusted)"
-    unexplained = locate(split.r_final, before, res_before, split.segments, len(base_knobs)) \
+    unexplained = locate(split.r_final, before, res_before, split.segments, len(base_knobs),
+                         spans={k.name: k.hi - k.lo for k in base_knobs}) \
         if verdict == UNEXPLAINED else None
     checks = cleaned.lines + [line for c, y in raw.channels.items()
               for line in check_channel(c, y, split.channels(after.output)[c] - y, noise[c], record.command,

@@ -128,6 +128,8 @@ def format_report(rep: DiscrepancyReport, what: str = "") -> str:
     if rep.unexplained:
         lines.append("  unexplained structure: " + "; ".join(rep.unexplained["where"]))
         lines += [f"    {b}" for b in rep.unexplained["bias"]]
+        lines += [f"    {k}: segment(s) {', '.join(s)} alone do not determine it (left out of its spread)"
+                  for k, s in rep.unexplained.get("undetermined", {}).items()]
     lines += [f"  data check: {d}" for d in rep.data_checks]
     lines.append(f"  fitness (weighted residual power): before {rep.before.fitness:.4g}, after {rep.after.fitness:.4g}")
     lines.append(f"  {'parameter':22s} {'before':>12s} {'after':>12s} {'+/- (after)':>12s}" +
