@@ -88,13 +88,18 @@ def test_recording_effects_are_undone(kind, value):
     (lambda r: all_late(r, 3e-3), "command_skew", 3e-3),     # before it: position_skew + current_skew, dK 0.033
     (lambda r: fast_clock(r, 0.008), "time_base", 0.008),     # before it: position_skew, dK 0.2
     (lambda r: drifting(r, "pressure", 0.2e6), "pressure_drift", 0.2e6),
+    # the recorded command's own chain: 50 um off read "unexplained" before these candidates
+    (lambda r: offset(r, "command", 5e-5), "command_offset", 5e-5),
+    (lambda r: scaled(r, "command", -0.02), "command_scale", -0.02),
 ])
 def test_whole_record_and_drift_effects_are_found_and_the_faults_re_identified(alter, cand, value):
     r = alter(_run(seed=23))
     rep = analyse_fdi_test(r, max_effects=2, truth=FAULTS.as_dict())
     assert rep.selected == [cand], (rep.selected, [c.name for c in rep.candidates[:3]])
     assert rep.after.values[cand] == pytest.approx(value, rel=0.1)
-    assert max(rep.before.errors.values()) > 0.03 or cand.endswith("drift")
+    # it mattered: the faults biased, or (a drift, the command's offset or scale) the residual structured
+    assert max(rep.before.errors.values()) > 0.03 or (
+        (cand.endswith("drift") or cand in ("command_offset", "command_scale")) and rep.residual_before.structured)
     assert max(rep.after.errors.values()) <= 0.03
 
 

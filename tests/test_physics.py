@@ -124,6 +124,21 @@ def test_chunked_plant_equals_one_shot():
     assert np.array_equal(a, b)
 
 
+def test_command_calibration_drives_the_actuator_with_the_command_it_received():
+    # a command recorded (1 + e) c + o: simulated from the recorded command with the calibration on,
+    # every output equals the plain run of c, and the command column holds what was recorded
+    seq = FDISequence()
+    c = seq.command(seq.times(1000))
+    f = Faults(0.3, 0.4, 0.3)
+    plain = Plant(load("reference"), f).step(c)
+    p = load("reference").with_effects(command_calibration={"enabled": True, "offset": 2e-4, "gain_error": 0.03})
+    rec = 1.03 * c + 2e-4
+    out = Plant(p, f).step(rec)
+    assert np.array_equal(out[:, 0], rec)
+    # (float rounding of (1.03 c + o - o) / 1.03 only: 1e-9 of each column's range)
+    assert np.all(np.abs(out[:, 1:] - plain[:, 1:]) <= 1e-9 * np.ptp(plain[:, 1:], axis=0))
+
+
 @pytest.mark.parametrize("effect, change", [
     ("compressibility", {"enabled": True}),
     ("sensor_delay", {"enabled": True}),

@@ -107,8 +107,11 @@ def fast_clock(r, e: float):
 ALTER = {"offset": (offset, lambda c: CHANNEL_SCALES[c]), "scale": (scaled, lambda c: 0.03),
          "skew": (late, lambda c: 4e-3), "lag": (lagged, lambda c: 3e-3),
          "drift": (drifting, lambda c: 0.3 * CHANNEL_SCALES[c])}
-#: The whole-record alterations: every channel 3 ms late, a time base 0.5 % fast.
-ALTER_RECORD = {"command_skew": lambda r: all_late(r, 3e-3), "time_base": lambda r: fast_clock(r, 5e-3)}
+#: The whole-record alterations: every channel 3 ms late, a time base 0.5 % fast, the recorded
+#: command one position scale (0.1 mm) off or 3 % large.
+ALTER_RECORD = {"command_skew": lambda r: all_late(r, 3e-3), "time_base": lambda r: fast_clock(r, 5e-3),
+                "command_offset": lambda r: offset(r, "command", CHANNEL_SCALES["position"]),
+                "command_scale": lambda r: scaled(r, "command", 0.03)}
 
 
 def recording_alterations(channels=MEASURED) -> tuple[tuple[str, object], ...]:

@@ -37,10 +37,14 @@ RIG_KNOBS = (
 
 #: Candidates that make sense without the aerodynamic surface and its link, or for a loop whose
 #: gain and spool time constant are calibrated (RIG_KNOBS) and which has no velocity feedback, and
-#: the loop structure a rig's frequency response may ask for (candidates.STRUCTURAL).
+#: the loop structure a rig's frequency response may ask for (candidates.STRUCTURAL). The recorded
+#: command's offset and scale are left out too: without a hinge spring or backlash the offset is
+#: the position's recording offset (no simulation needed), and the scale has not been tried on a
+#: rig record (each would add its screens to the 60 s record's budget).
 RIG_CANDIDATES = tuple(c for c in CANDIDATES if c.name not in ("load_stiffness", "mount_compliance",
                                                              "controller_gain", "velocity_feedback",
-                                                             "valve_response")) + STRUCTURAL
+                                                             "valve_response", "command_offset",
+                                                             "command_scale")) + STRUCTURAL
 
 
 def rig_params(base: ModelParams | None = None, dt: float = 1e-4) -> ModelParams:

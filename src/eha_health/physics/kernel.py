@@ -15,8 +15,8 @@ from numba import njit, prange
 
 from .controller import servo_amplifier, vibration_level_step
 from .jack import jack_step
-from .layout import (N_OUT, N_S, O_CMD, O_CUR, O_P12, O_POS, O_VEL, O_XJ, O_XS, P_DELAY, P_DT,
-                     P_MODEL, P_NSUB, P_XBIAS, S_IV, S_P12, S_VJ, S_VM, S_XJ, S_XM, S_XS)
+from .layout import (N_OUT, N_S, O_CMD, O_CUR, O_P12, O_POS, O_VEL, O_XJ, O_XS, P_CMDGAIN, P_CMDOFF,
+                     P_DELAY, P_DT, P_MODEL, P_NSUB, P_XBIAS, S_IV, S_P12, S_VJ, S_VM, S_XJ, S_XM, S_XS)
 from .linkage import link_force, surface_step
 from .sensors import transducer_step
 from .servovalve import first_stage_monitor, first_stage_reference
@@ -52,7 +52,8 @@ def run(p, s, cmd, load, noise, dbuf, out):
         out[k, O_CUR] = s[S_IV]
         out[k, O_XS] = s[S_XS]
         out[k, O_XJ] = s[S_XJ]
-        x_cmd = cmd[k]
+        # the command the actuator receives; cmd is the recorded one (output column O_CMD)
+        x_cmd = (cmd[k] - p[P_CMDOFF]) / p[P_CMDGAIN]
         f_ext = load[k] if has_load else 0.0
         for j in range(nsub):
             # GAS acts on the jack velocity (rate of the actuator's own transducer): an inner loop

@@ -39,6 +39,8 @@ P_NAMES = (
     # vibration-rectified valve null shift: switch, current per mean |acceleration|, averaging time,
     # velocity filter ahead of the acceleration
     "vib_on", "vib_gain", "vib_tau", "vib_filter",
+    # recording chain of the command: the actuator receives (recorded - offset) / gain
+    "cmd_offset", "cmd_gain",
 )
 
 # --- parameter indices (keep in the order of P_NAMES) ---
@@ -57,6 +59,7 @@ P_VSMAX = 56
 P_FHINGE = 57
 P_FASYM = 58
 P_VIBON, P_VIBGAIN, P_VIBTAU, P_VIBFILT = 59, 60, 61, 62
+P_CMDOFF, P_CMDGAIN = 63, 64
 N_P = len(P_NAMES)
 
 MODEL_REFERENCE = 0.0

@@ -74,6 +74,9 @@ def pack(params: ModelParams, faults: Faults = Faults()) -> np.ndarray:
     p[L.P_XGAIN] = 1.0
     if e.sensor_calibration.enabled:
         p[L.P_XBIAS], p[L.P_XGAIN] = e.sensor_calibration.bias, 1.0 + e.sensor_calibration.gain_error
+    p[L.P_CMDGAIN] = 1.0
+    if e.command_calibration.enabled:
+        p[L.P_CMDOFF], p[L.P_CMDGAIN] = e.command_calibration.offset, 1.0 + e.command_calibration.gain_error
     if e.stribeck.enabled:
         p[L.P_STRIB], p[L.P_VSTRIB] = 1.0, e.stribeck.velocity
     if e.vibration_null_shift.enabled:

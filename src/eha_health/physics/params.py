@@ -191,6 +191,15 @@ class SensorCalibration:
 
 
 @dataclass(frozen=True)
+class CommandCalibration:
+    """The recorded command against the command the actuator received: recorded = (1 + e) c + offset
+    (a logger's ADC offset and gain on the command line, or a DAC's against its setpoint)."""
+    enabled: bool
+    offset: float = _f("m", "offset of the recorded command")
+    gain_error: float = _f("-", "relative gain error of the recorded command", lo=-0.5, hi=0.5)
+
+
+@dataclass(frozen=True)
 class Stribeck:
     """Velocity-dependent dry friction: F(v) = F_d + (F_s - F_d) exp(-(v/v_s)^2)."""
     enabled: bool
@@ -232,6 +241,7 @@ class Effects:
     stribeck: Stribeck
     command_noise: CommandNoise
     vibration_null_shift: VibrationNullShift
+    command_calibration: CommandCalibration
 
 
 #: Names of the optional effects, as accepted by ``with_effect_names`` and the CLI.
