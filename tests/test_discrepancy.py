@@ -11,7 +11,8 @@ import pytest
 import yaml
 
 from eha_health import simulate
-from eha_health.discrepancy.candidates import BY_NAME, CANDIDATES, IN_LOOP_CANDIDATES, STRUCTURAL, overlapping
+from eha_health.discrepancy.candidates import (BY_NAME, CANDIDATES, COMMAND_CHAIN, IN_LOOP_CANDIDATES, STRUCTURAL,
+                                               overlapping)
 from eha_health.discrepancy.evidence import projection_share
 from eha_health.discrepancy.loop import analyse_fdi_test
 from eha_health.discrepancy.report import EQUIVALENT_DIC, NO_MISSING_EFFECT, UNEXPLAINED, format_report
@@ -297,9 +298,10 @@ def test_fit_never_returns_worse_than_its_start():
 
 def test_settings_floor_grows_with_the_effects_added():
     st = fdi_settings()
-    # bench floor measured every in-loop candidate; a recording effect changes no simulated physics
-    assert set(st.effect_floor) == {c.name for c in IN_LOOP_CANDIDATES}
-    assert st.floor_with(["pressure_offset"]) == st.floor
+    # bench floor measured every in-loop candidate; a recording effect changes no simulated physics,
+    # nor does the recorded command's chain (the same model driven by the command the actuator got)
+    assert set(st.effect_floor) == {c.name for c in IN_LOOP_CANDIDATES} - set(COMMAND_CHAIN)
+    assert st.floor_with(["pressure_offset"]) == st.floor == st.floor_with(list(COMMAND_CHAIN))
     base = st.floor_with([])
     assert base == st.floor
     both = st.floor_with(["compressibility", "sensor_delay"])

@@ -377,3 +377,32 @@ def test_a_record_slower_than_its_controller_is_fitted_with_the_command_it_had()
     assert h.command_rate == pytest.approx(500.0) and any("held over each sample" in w for w in h.warnings)
     # told the rate, it fits that way only
     assert diagnose(held, command_rate=1000.0).command_rate == pytest.approx(1000.0)
+
+
+def test_a_noisy_or_quantised_command_recording_is_not_what_drives_the_model():
+    # the actuator received the controller's command, not the logger's noisy reading of it: with
+    # 0.5 um of ADC noise on the recorded command the loop had named stribeck, with 2 um
+    # "unexplained", the faults 0.008-0.012 off
+    import dataclasses
+
+    from eha_health.identification.record import logged_command
+    from eha_health.physics.sequence import FDISequence
+    seq, rng = FDISequence(), np.random.default_rng(5)
+    clean = _run(seed=31)
+    assert logged_command(clean, seq) == (clean, None)          # a computed command is left alone
+    late3 = np.concatenate([np.zeros(3), clean.command[:-3]]) + 5e-5
+    noisy = dataclasses.replace(clean, command=late3 + rng.normal(0.0, 2e-6, len(clean.t)))
+    back, note = logged_command(noisy, seq)
+    # the noise goes, the logger's offset and whole-sample delay stay (the loop's candidates judge them)
+    assert np.sqrt(np.mean((back.command - late3) ** 2)) < 1e-7
+    assert "white noise" in note and "delay 3 ms" in note
+    stretched = dataclasses.replace(clean, command=np.interp(clean.t * 1.01, clean.t, clean.command)
+                                    + rng.normal(0.0, 1e-6, len(clean.t)))
+    kept, why = logged_command(stretched, seq)
+    assert np.array_equal(kept.command, stretched.command) and "used as recorded" in why
+    for cmd in (clean.command + rng.normal(0.0, 1e-6, len(clean.t)), np.round(clean.command / 25e-6) * 25e-6):
+        r = dataclasses.replace(clean, command=cmd)
+        rep = analyse_fdi_test(r, max_effects=1, truth=FAULTS.as_dict())
+        assert rep.selected == [] and max(rep.after.errors.values()) <= 0.01, (rep.verdict, rep.selected)
+        assert rep.data_checks[0].startswith("command: ")
+        assert any(w.startswith("data check: command: ") for w in diagnose(r).warnings)

@@ -340,6 +340,11 @@ STRUCTURAL: tuple[Candidate, ...] = (
                     doc="relative change of the first-stage damping ratio"))),
 )
 
+#: In-loop candidates that change only the model's input (the recorded command's chain): the
+#: monitor that holds the right one is the base monitor driven by the command the actuator got, so
+#: its floor is the base floor (``bench floor`` measures the others' ``effect_floor``).
+COMMAND_CHAIN = ("command_offset", "command_scale")
+
 #: In-loop physics and every measured channel's recording chain.
 IN_LOOP_CANDIDATES = CANDIDATES
 RECORDING = recording_candidates()

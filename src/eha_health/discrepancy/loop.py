@@ -46,7 +46,7 @@ from ..identification.diagnose import WHOLE_TEST_METHODS, Diagnosis, diagnose
 from ..identification.knobs import FAULT_KNOBS, Knob
 from ..identification.local import least_squares
 from ..identification.problem import KnobModel, Problem
-from ..identification.record import Record
+from ..identification.record import Record, logged_command
 from ..identification.residual import CHANNEL_COLUMNS, Residual
 from ..identification.result import FitResult
 from ..identification.uncertainty import autocorr_inflation, measured_error
@@ -539,7 +539,10 @@ def analyse_fdi_test(response, max_effects: int = 2, seed: int = 0, params: Mode
                      truth: dict | None = None, candidates: tuple[Candidate, ...] = CANDIDATES,
                      settings: Settings | None = None, progress=None, diagnosis=None) -> DiscrepancyReport:
     """The loop on one FDI test: start from :func:`start_diagnosis` (the given diagnosis when it fits
-    the whole test, else the :data:`START_METHOD` one run with ``seed``)."""
+    the whole test, else the :data:`START_METHOD` one run with ``seed``). A noisy or quantised
+    recording of the FDI command is replaced by the sequence as the logger saw it
+    (:func:`~..identification.record.logged_command`; the report's data checks say so)."""
+    response, command_note = logged_command(response, FDISequence())
     diagnosis = start_diagnosis(response, seed, params, progress, diagnosis)
     # the command as the diagnosis held it (a record slower than the controller: problem.oversampling)
     rate = diagnosis.command_rate if np.isfinite(diagnosis.command_rate) else None
@@ -554,6 +557,9 @@ def analyse_fdi_test(response, max_effects: int = 2, seed: int = 0, params: Mode
                      clean=False, command_rate=rate)
         return np.array(d.faults.as_tuple()), int(d.evaluations)
 
-    return run_loop(record, params, FAULT_KNOBS, np.array(diagnosis.faults.as_tuple()),
-                    fdi_segments(record), candidates, max_effects, settings or fdi_settings(), truth,
-                    "all", progress, rediagnose)
+    rep = run_loop(record, params, FAULT_KNOBS, np.array(diagnosis.faults.as_tuple()),
+                   fdi_segments(record), candidates, max_effects, settings or fdi_settings(), truth,
+                   "all", progress, rediagnose)
+    if command_note:
+        rep = dataclasses.replace(rep, data_checks=[command_note] + rep.data_checks)
+    return rep
