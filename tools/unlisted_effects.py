@@ -13,8 +13,8 @@ sign or size of the bench's ones, quantisation, coloured and stronger noise, a d
 NaN, a command recorded off its zero with a position lag, a channel in mA or with its sign
 inverted, and nominal-parameter changes in the plant (valve flow gain, jack area, controller
 gain either way, hinge friction, supply, leakage, a slower valve; oil softer than the bench's,
-alone and with a pressure offset). One noisy reference run at faults (0.3, 0.4, 0.3), seed 777, up to two effects; per case the verdict, the selection, the first
-three candidates, the data checks, the largest fault-coefficient error before -> after and the
+alone and with a pressure offset). One noisy reference run at faults (0.3, 0.4, 0.3), seed 777,
+up to two effects; per case the verdict, the selection, the first three candidates, the data checks, the largest fault-coefficient error before -> after and the
 loop's time (or the error that refused the record before any fit). The figures of docs/discrepancy.md ("Alterations the bench does not list") come
 from this script.
 """

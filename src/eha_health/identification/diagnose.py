@@ -349,10 +349,11 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
         (a faster one) -- and the better stage fit kept, a warning saying which.
     """
     t0 = time.perf_counter()
+    seq = sequence or FDISequence()
     # a noisy or quantised recording of the command: the actuator received the controller's
-    response, command_note = logged_command(response, sequence or FDISequence())
-    command_note = [f"data check: {command_note}"] if command_note else []
-    record = fdi_record(response, sequence or FDISequence())
+    response, note = logged_command(response, seq)
+    command_warning = [f"data check: {note}"] if note else []
+    record = fdi_record(response, seq)
     base = params if params is not None else load("monitor")
     args = (response, method, fitness, seed, start, params, sequence, ga_options, progress)
     rate_note: list[str] = []
@@ -374,7 +375,7 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
             progress(note)
     else:
         d = _identify(*args, command_rate=command_rate)
-    d = replace(d, warnings=command_note + d.warnings)
+    d = replace(d, warnings=command_warning + d.warnings)
     if not clean or fitness != "lsq":
         return replace(d, wall_time_s=time.perf_counter() - t0)
     cleaned = clean_channels(record.t, record.channels, {c: getattr(d.fitted, c) for c in record.channels},
@@ -386,7 +387,7 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
         if progress:
             progress(f"data check: {line}; identifying again")
     again = _identify(*args, cleaned=cleaned, command_rate=d.command_rate)
-    return replace(again, warnings=command_note + [f"data check: {line}" for line in cleaned.lines] + rate_note
+    return replace(again, warnings=command_warning + [f"data check: {line}" for line in cleaned.lines] + rate_note
                    + again.warnings,
                    evaluations=d.evaluations + again.evaluations, wall_time_s=time.perf_counter() - t0)
 

@@ -249,23 +249,23 @@ def logged_command(response: Response, sequence: FDISequence) -> tuple[Response,
     # offset and gain by linear least squares
     rate = 1.0 / float(np.median(np.diff(ti)))
     u0 = sequence.command(ti)
-    shifted = lambda k: np.concatenate([np.full(k, u0[0]), u0[:len(u0) - k]]) if k >= 0 else \
-        np.concatenate([u0[-k:], np.full(-k, u0[-1])])   # noqa: E731  (by index: a step stays on its sample)
-    best = None
+
+    def shifted(k: int) -> np.ndarray:
+        """u0 k samples late (by index: a step stays on its sample), ends held."""
+        return np.concatenate([np.full(k, u0[0]), u0[:len(u0) - k]]) if k >= 0 else \
+            np.concatenate([u0[-k:], np.full(-k, u0[-1])])
+
+    fits = []
     for k in range(-20, 21):
-        u = shifted(k)
-        A = np.column_stack([np.ones_like(u), u])
+        A = np.column_stack([np.ones(len(u0)), shifted(k)])
         coef = np.linalg.lstsq(A, ci, rcond=None)[0]
-        r = ci - A @ coef
-        if best is None or r @ r < best[0]:
-            best = (float(r @ r), k, coef)
-    _, k, (a0, g) = best
-    x = np.array([a0, g - 1.0, k / rate])
-    smooth = x[0] + (1.0 + x[1]) * shifted(k)
+        fits.append((float(np.sum((ci - A @ coef) ** 2)), k, coef))
+    _, k, (offset, gain) = min(fits, key=lambda f: f[0])
+    smooth = offset + gain * shifted(k)
     left = float(np.sqrt(np.mean((ci - smooth) ** 2)))
     level = max(sd, q / np.sqrt(12.0))
-    what = (f"white noise {sd:.3g} m RMS" if sd > COMMAND_NOISE_SHARE * peak else "") + \
-        (" and " if sd > COMMAND_NOISE_SHARE * peak and q > 0 else "") + (f"quantised in steps of {q:.3g} m" if q > 0 else "")
+    what = " and ".join(([f"white noise {sd:.3g} m RMS"] if sd > COMMAND_NOISE_SHARE * peak else [])
+                        + ([f"quantised in steps of {q:.3g} m"] if q > 0 else []))
     if left > 3.0 * level:
         return response, (f"command: {what}, but it departs from the FDI sequence by more ({left:.3g} m RMS "
                           f"after an offset, gain and delay): used as recorded")
@@ -273,8 +273,8 @@ def logged_command(response: Response, sequence: FDISequence) -> tuple[Response,
     out[inside] = smooth
     return replace(response, command=out), (
         f"command: {what} (the logger's: the actuator received the controller's command): the model "
-        f"is driven by the FDI sequence as recorded -- offset {x[0]:.3g} m, gain error {x[1]:.3g}, "
-        f"delay {x[2] * 1e3:.3g} ms -- without it ({left:.3g} m RMS removed)")
+        f"is driven by the FDI sequence as recorded -- offset {offset:.3g} m, gain error {gain - 1.0:.3g}, "
+        f"delay {k / rate * 1e3:.3g} ms -- without it ({left:.3g} m RMS removed)")
 
 
 def fdi_record(response: Response, sequence: FDISequence) -> Record:
