@@ -18,7 +18,7 @@ from ..identification.knobs import Knob
 from ..identification.record import Record
 from ..physics.params import ModelParams, load
 from ..signals import frequency
-from .candidates import CANDIDATES, STRUCTURAL
+from .candidates import CANDIDATES, COMMAND_CHAIN, STRUCTURAL
 from .loop import quantile_segments, run_loop
 from .report import DiscrepancyReport
 from .settings import Settings
@@ -43,8 +43,7 @@ RIG_KNOBS = (
 #: rig record (each would add its screens to the 60 s record's budget).
 RIG_CANDIDATES = tuple(c for c in CANDIDATES if c.name not in ("load_stiffness", "mount_compliance",
                                                              "controller_gain", "velocity_feedback",
-                                                             "valve_response", "command_offset",
-                                                             "command_scale")) + STRUCTURAL
+                                                             "valve_response", *COMMAND_CHAIN)) + STRUCTURAL
 
 
 def rig_params(base: ModelParams | None = None, dt: float = 1e-4) -> ModelParams:

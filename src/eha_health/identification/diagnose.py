@@ -351,6 +351,7 @@ def diagnose(response: Response, method: str = DEFAULT_METHOD, fitness: str = "l
     t0 = time.perf_counter()
     seq = sequence or FDISequence()
     # a noisy or quantised recording of the command: the actuator received the controller's
+    # command, not the logger's reading of it (record.logged_command)
     response, note = logged_command(response, seq)
     command_warning = [f"data check: {note}"] if note else []
     record = fdi_record(response, seq)
