@@ -185,11 +185,11 @@ def _healthy_corners(problem: Problem, f: FitResult, max_nfev: int) -> FitResult
     """``f``, or a local fit from ``f`` with one fault coefficient set to 0, where that coefficient is
     within its typical magnitude (:attr:`Knob.typical`) of 0 and the point costs less than ``f``.
 
-    The monitor's cost is rippled in a fault coefficient (backlash: the contact events fall on the
-    integration steps), and a local fit started from a biased diagnosis can stop in a ripple short
-    of 0: measured, a 40 % slower spool with faults 0 -- the valve candidate's fit stopped at K_BKL
-    0.028 with fit-part cost 0.033, while K_BKL = 0 cost 0.0056, and its held-out prediction lost
-    the ranking to the supply sag. Farther from 0 a cheaper corner is another basin, not a ripple,
+    The monitor's cost has local minima in a fault coefficient near 0 (backlash: its contact
+    events), and a local fit started from a biased diagnosis can stop in one short of 0: measured,
+    a 40 % slower spool with faults 0 -- the valve candidate's fit stopped at K_BKL 0.028 with
+    fit-part cost 0.033, while K_BKL = 0 cost 0.0056, and its held-out prediction lost the ranking
+    to the supply sag. Farther from 0 a cheaper corner is another basin, not a local dip,
     and the fit part alone does not choose basins: a pressure offset's refit with a 1 ms loop delay
     still missing cost x0.99 at K_BKL 0.27 -> 0 (x0.94 refitted), and predicted the held-out part
     worse (x0.80 against x0.21). One run per coefficient checked."""
