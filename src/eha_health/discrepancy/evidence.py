@@ -177,7 +177,11 @@ def _refit(rnd: Round, mc: KnobModel, cand: Candidate, anchors: list[np.ndarray]
         if len(starts) >= st.starts + (rnd.structured == FREQUENCY):
             break
     problem = Problem(mc, rnd.r_fit)
-    best = min((least_squares(problem, s0, max_nfev=st.max_nfev) for s0 in starts), key=lambda f: f.cost)
+    # the fits from distinct starts are independent: one thread each (a trial point is one run, on
+    # one core; a refit alone -- an overlap, a retry -- left the other core idle). Each fit and the
+    # choice between them are what they were in sequence.
+    fits = concurrently(lambda s0: least_squares(problem, s0, max_nfev=st.max_nfev), starts)
+    best = min(fits, key=lambda f: f.cost)
     return _healthy_corners(problem, best, st.max_nfev)
 
 

@@ -10,6 +10,7 @@ problem and algorithm and scipy returns one result object.
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -67,6 +68,10 @@ def _upsampled(x: np.ndarray, m: int) -> np.ndarray:
         for k in np.flatnonzero((d > JUMP_RATIO * near) & (d > 0)):
             fine[k * m + 1:(k + 1) * m] = x[k]
     return fine
+
+
+#: Guards every KnobModel's run counter (one lock: the counts are cheap, the runs are not under it).
+_RUNS_LOCK = threading.Lock()
 
 
 class KnobModel:
@@ -144,7 +149,9 @@ class KnobModel:
         new = np.ones(len(P_u), bool)
         if known is not None:
             new &= ~np.all(P_u == self.packed(known[0]), axis=1)
-        self.runs += int(new.sum()) if count else 0
+        if count:
+            with _RUNS_LOCK:     # independent fits of one model may run in threads (evidence._refit)
+                self.runs += int(new.sum())
         cmd, load, n0 = self.record.command, self.record.load, 0
         if self.record.preroll is not None:
             n0 = len(self.record.preroll)
