@@ -230,6 +230,10 @@ def test_bench_reports_how_honest_the_error_bars_are_after_the_loop():
     assert res["z_rms_after_found"] == pytest.approx({k: abs(case["z_after"][k]) for k in FAULT_NAMES}, rel=1e-12)
     assert case["z_after"]["k_bkl"] <= 3
     assert "error / stated standard error after" in format_synthetic(res)
+    # the machine's speed beside the time figures: a monitor run of the 3.5 s test, before and after
+    m = res["monitor_run_s"]
+    assert 0 < m["start"] < case["wall_time_s"] and 0 < m["end"] < case["wall_time_s"]
+    assert "one monitor run of the FDI test" in format_synthetic(res)
 
 
 def test_bench_without_a_channel_leaves_it_out_of_every_record_and_its_effects_out_of_the_cases():

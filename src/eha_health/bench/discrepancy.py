@@ -27,6 +27,7 @@ from ..physics.model import simulate
 from ..identification.residual import CHANNEL_SCALES
 from ..physics.params import ModelParams, load
 from ..signals.channels import DISPLAY_UNITS, MEASURED
+from .speed import monitor_run_s
 
 #: Undeclared in-loop effects of the synthetic bench: (candidate that should be found, how the plant gets it).
 EFFECTS: tuple[tuple[str, object], ...] = (
@@ -155,6 +156,8 @@ def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, faul
                  if (effects is None or set(names) & set(effects))
                  and all(BY_NAME[n].applies_to(recorded) for n in names)]
     todo += [((), (lambda p: p), None, Faults(*rng.uniform(0.0, 1.0, 3))) for _ in range(n_noise)]
+    # the machine's speed before and after (a shared machine drifts): the time figures compare by it
+    machine = [monitor_run_s()]
     for i, (names, make, alter, f) in enumerate(todo):
         p: ModelParams = make(ref).with_effect_names(["sensor_noise"])
         r = simulate(params=p, faults=f, seed=seed + 100 + i)
@@ -194,8 +197,10 @@ def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, faul
                      f"{c['ranked_first']}; {ch} held-out excess {c['excess_held_before'][ch]:.3g} -> "
                      f"{c['excess_held_after'][ch]:.3g}; max|dK| {c['err_before']:.4f} -> {c['err_after']:.4f}; "
                      f"{c['runs']} runs, {c['wall_time_s']:.1f} s")
+    machine.append(monitor_run_s())
     res = summarise(cases, seed)
     res["without"] = list(without)
+    res["monitor_run_s"] = {"start": machine[0], "end": machine[1]}
     return res
 
 
@@ -311,6 +316,10 @@ def format_synthetic(res: dict) -> str:
         lines.append(f"time per analysis with the diagnosis it starts from (what `eha-health discrepancy` takes, "
                      f"reading the record aside): min {d['min']:.1f} s, median {d['median']:.1f} s, max "
                      f"{d['max']:.1f} s; over 10 s in {over} of {len(res['cases'])}")
+    if res.get("monitor_run_s"):
+        m = res["monitor_run_s"]
+        lines.append(f"this machine: one monitor run of the FDI test {1e3 * m['start']:.2f} ms at the start, "
+                     f"{1e3 * m['end']:.2f} ms at the end (best of 15; the time figures of two machines compare by it)")
     if res.get("third_share") is not None:
         lines.append(f"where the true effect was selected: affected channel's held-out excess after <= 1/3 of "
                      f"before in {pct(res['third_share'])}; coefficients within 0.03 in "

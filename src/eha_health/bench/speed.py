@@ -166,6 +166,19 @@ def step_check(substeps=(16, 15, 10), repeat: int = 3) -> dict:
     return out
 
 
+def monitor_run_s(repeat: int = 15) -> float:
+    """Best wall time [s] of one monitor run of the FDI test (faults 0.4, 0.6, 0.4) on the calling
+    thread: the machine's speed, by which two machines' time figures of the same command compare."""
+    cmd = FDISequence().command(FDISequence().times(1000.0))
+    plant = Plant(kind="monitor", faults=Faults(0.4, 0.6, 0.4))
+    plant.step(cmd)  # compiled / loaded from cache
+
+    def one():
+        plant.reset()
+        plant.step(cmd)
+    return _best(one, repeat)
+
+
 def speed(repeat: int = 7, batch: int = 40, with_compile: bool = True) -> dict:
     """Measure; returns a dict of figures (seconds, ratios)."""
     seq = FDISequence()
