@@ -54,6 +54,17 @@ def _best(fn, repeat: int) -> float:
     return min(ts)
 
 
+def plant_run_s(plant: Plant, cmd: np.ndarray, repeat: int) -> float:
+    """Best wall time [s] of ``plant`` run from rest over ``cmd`` on the calling thread (the first
+    run, which compiles or loads the kernel, not timed)."""
+    plant.step(cmd)
+
+    def one():
+        plant.reset()
+        plant.step(cmd)
+    return _best(one, repeat)
+
+
 def _pool_worker_init() -> None:
     numba.set_num_threads(1)     # one process per core: no threads inside
 
@@ -143,13 +154,7 @@ def step_check(substeps=(16, 15, 10), repeat: int = 3) -> dict:
     cases = [(0.0, 0.0, 0.0), DIAGNOSIS_CASE, (0.0, 0.0, 1.0)]
 
     def per_run(p):
-        plant = Plant(params=p, faults=Faults(*DIAGNOSIS_CASE))
-        plant.step(cmd)
-
-        def one():
-            plant.reset()
-            plant.step(cmd)
-        return _best(one, repeat)
+        return plant_run_s(Plant(params=p, faults=Faults(*DIAGNOSIS_CASE)), cmd, repeat)
     base_t = per_run(mon)
     base = [simulate("monitor", Faults(*c), params=mon) for c in cases]
     out: dict = {"shipped_dt_s": mon.integration.dt, "steps": []}
@@ -169,14 +174,8 @@ def step_check(substeps=(16, 15, 10), repeat: int = 3) -> dict:
 def monitor_run_s(repeat: int = 15) -> float:
     """Best wall time [s] of one monitor run of the FDI test (faults 0.4, 0.6, 0.4) on the calling
     thread: the machine's speed, by which two machines' time figures of the same command compare."""
-    cmd = FDISequence().command(FDISequence().times(1000.0))
-    plant = Plant(kind="monitor", faults=Faults(0.4, 0.6, 0.4))
-    plant.step(cmd)  # compiled / loaded from cache
-
-    def one():
-        plant.reset()
-        plant.step(cmd)
-    return _best(one, repeat)
+    seq = FDISequence()
+    return plant_run_s(Plant(kind="monitor", faults=Faults(0.4, 0.6, 0.4)), seq.command(seq.times(1000.0)), repeat)
 
 
 def speed(repeat: int = 7, batch: int = 40, with_compile: bool = True) -> dict:
@@ -189,12 +188,7 @@ def speed(repeat: int = 7, batch: int = 40, with_compile: bool = True) -> dict:
         res.update(compile_times())
     for kind in ("reference", "monitor"):
         plant = Plant(kind=kind, faults=Faults(0.4, 0.6, 0.4))
-        plant.step(cmd)  # compiled / loaded from cache
-
-        def one():
-            plant.reset()
-            plant.step(cmd)
-        wall = _best(one, repeat)
+        wall = plant_run_s(plant, cmd, repeat)
         res[f"{kind}_wall_s"] = wall
         res[f"{kind}_realtime_factor"] = seq.duration / wall
         res[f"{kind}_fine_step_s"] = plant.params.integration.dt
