@@ -564,28 +564,35 @@ def retry_pruned(rnd: Round, results: list[Result], candidates, anchors: list[np
     screen, took the fourth retry from compressibility in that case once supply_pressure had been
     retried).
 
-    When the first by rank still fails the gates, a second pass retries the in-loop candidates still judged at their
-    screened point that rank among the first :data:`RISEN_RANKS` with dIC < 0 and were not tried:
-    the held-out evidence of the screen can be strong where its fit part is weak, and the fit-ratio
-    order then leaves the candidate out (measured, ``bench discrepancy --seed 1``: a +3 % feedback
-    sensor gain at (0.3, 0.4, 0.3), screened at fit x0.997, 32nd of 41 by the fit part, held out
-    x0.815, dIC -133, second by rank behind a refitted load_mass that failed the gates; the four
-    retries went to flow_asymmetry, velocity_feedback, viscous_friction, command_scale and the
-    verdict was "unexplained" with K_BKL 0.144 off; retried, dIC -3357, gain_error 0.0302 for 0.03).
+    When the first by rank still fails the gates, a second pass retries the in-loop candidates
+    still judged at their screened point that rank among the first :data:`RISEN_RANKS` with dIC < 0
+    and were not tried: the held-out evidence of the screen can be strong where its fit part is
+    weak, and the fit-ratio order then leaves the candidate out (measured, ``bench discrepancy
+    --seed 1``: a +3 % feedback sensor gain at (0.3, 0.4, 0.3), screened at fit x0.997, 32nd of 41
+    by the fit part, held out x0.815, dIC -133, second by rank behind a refitted load_mass that
+    failed the gates; the four retries went to flow_asymmetry, velocity_feedback, viscous_friction,
+    command_scale and the verdict was "unexplained" with K_BKL 0.144 off; retried, dIC -3357,
+    gain_error 0.0302 for 0.03).
     Returns the results (unsorted) and the model runs spent."""
     kind = {c.name: c.kind for c in candidates}
+
+    def pruned_in_loop(ev: CandidateEvidence) -> bool:
+        return not ev.refit and kind[ev.name] != RECORDING_CHAIN
+
+    def gates(ev: CandidateEvidence) -> bool:
+        return rnd.passes(ev, structured)
+
     tried = {r.evidence.name for r in results if r.evidence.refit}
-    pruned = [i for i, r in enumerate(results) if not r.evidence.refit and kind[r.evidence.name] != RECORDING_CHAIN
+    pruned = [i for i, r in enumerate(results) if pruned_in_loop(r.evidence)
               and not tried & set(overlapping(r.evidence.name, candidates))]
     order = sorted(pruned, key=lambda i: results[i].evidence.fit_ratio)[:rnd.settings.pruned_retries]
-    gates = lambda ev: rnd.passes(ev, structured)  # noqa: E731
     results, spent = _retry_in_batches(rnd, results, order, candidates, anchors, n_base, rediagnose, say, gates)
     first = sorted(range(len(results)), key=lambda i: rank(results[i]))[:RISEN_RANKS]
     if gates(results[first[0]].evidence):
         return results, spent
     tried |= {results[i].evidence.name for i in order}
-    risen = [i for i in first if not results[i].evidence.refit and kind[results[i].evidence.name] != RECORDING_CHAIN
-             and results[i].evidence.name not in tried and results[i].evidence.delta_ic < 0]
+    risen = [i for i in first if pruned_in_loop(results[i].evidence) and results[i].evidence.name not in tried
+             and results[i].evidence.delta_ic < 0]
     results, more = _retry_in_batches(rnd, results, risen, candidates, anchors, n_base, rediagnose, say, gates)
     return results, spent + more
 
