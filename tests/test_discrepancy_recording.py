@@ -234,6 +234,8 @@ def test_bench_reports_how_honest_the_error_bars_are_after_the_loop():
     m = res["monitor_run_s"]
     assert 0 < m["start"] < case["wall_time_s"] and 0 < m["end"] < case["wall_time_s"]
     assert "one monitor run of the FDI test" in format_synthetic(res)
+    # the cases are timed after an untimed analysis that loads or compiles the kernels
+    assert res["warm_up_s"] > 0 and "untimed analysis" in format_synthetic(res)
 
 
 def test_bench_without_a_channel_leaves_it_out_of_every_record_and_its_effects_out_of_the_cases():
