@@ -691,14 +691,19 @@ def test_a_candidate_strong_held_out_but_weak_on_the_fit_part_is_retried_too():
     """The feedback sensor's gain 3 % high at (0.3, 0.4, 0.3), noise seed 112 (`bench discrepancy
     --seed 1`'s case): sensor_gain screens at fit x0.997 (32nd of 41) but held out x0.815, second by
     rank behind a refitted load_mass that fails the gates, and the four pruned retries in fit-ratio
-    order went to others: "unexplained", K_BKL 0.14 off. A pruned in-loop candidate still ranked among
-    the first three with dIC < 0 is retried as well: found, sized, faults within 0.03."""
+    order went to others: "unexplained", K_BKL 0.14 off. A pruned in-loop candidate ranked among the
+    first three with dIC < 0 is retried too, and first, in the first batch of the pruned retries:
+    found, sized, faults within 0.03, and the fit-ratio retries after its batch never run."""
     r = simulate(faults=Faults(0.3, 0.4, 0.3), seed=112, params=load("reference").with_effect_names(["sensor_noise"])
                  .with_effects(sensor_calibration={"enabled": True, "gain_error": 0.03}))
-    rep = analyse_fdi_test(r, max_effects=1, truth=Faults(0.3, 0.4, 0.3).as_dict())
+    said = []
+    rep = analyse_fdi_test(r, max_effects=1, truth=Faults(0.3, 0.4, 0.3).as_dict(), progress=said.append)
     assert rep.selected == ["sensor_gain"]
     assert rep.after.values["gain_error"] == pytest.approx(0.03, rel=0.1)
     assert max(rep.after.errors.values()) <= 0.03
+    retried = {m.split(": ", 1)[1].split(" -- ")[0] for m in said if "base re-identified" in m}
+    # (the fit-ratio order's second batch: retried before sensor_gain when it came after them)
+    assert "sensor_gain" in retried and not retried & {"viscous_friction", "command_scale"}
 
 
 def test_a_candidate_refit_stopped_in_a_backlash_ripple_is_taken_to_the_healthy_corner():
