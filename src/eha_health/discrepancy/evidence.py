@@ -583,22 +583,24 @@ def retry_pruned(rnd: Round, results: list[Result], candidates, anchors: list[np
     def gates(ev: CandidateEvidence) -> bool:
         return rnd.passes(ev, structured)
 
+    def strong(res: list[Result], allowed: Callable[[int], bool]) -> list[int]:
+        """Indices of ``res`` among its first :data:`RISEN_RANKS` by rank, with dIC < 0, that ``allowed`` keeps."""
+        first = sorted(range(len(res)), key=lambda i: rank(res[i]))[:RISEN_RANKS]
+        return [i for i in first if allowed(i) and res[i].evidence.delta_ic < 0]
+
     tried = {r.evidence.name for r in results if r.evidence.refit}
     pruned = [i for i, r in enumerate(results) if pruned_in_loop(r.evidence)
               and not tried & set(overlapping(r.evidence.name, candidates))]
     # strong held-out evidence first: where such a candidate is the answer, the fit-ratio retries
     # before it were spent for nothing (measured: the sensor gain below, 3079 -> 2481 runs)
-    ahead = [i for i in sorted(range(len(results)), key=lambda i: rank(results[i]))[:RISEN_RANKS]
-             if i in pruned and results[i].evidence.delta_ic < 0]
+    ahead = strong(results, lambda i: i in pruned)
     by_fit = sorted((i for i in pruned if i not in ahead), key=lambda i: results[i].evidence.fit_ratio)
     order = ahead + by_fit[:rnd.settings.pruned_retries]
     results, spent = _retry_in_batches(rnd, results, order, candidates, anchors, n_base, rediagnose, say, gates)
-    first = sorted(range(len(results)), key=lambda i: rank(results[i]))[:RISEN_RANKS]
-    if gates(results[first[0]].evidence):
+    if gates(min(results, key=rank).evidence):
         return results, spent
     tried |= {results[i].evidence.name for i in order}
-    risen = [i for i in first if pruned_in_loop(results[i].evidence) and results[i].evidence.name not in tried
-             and results[i].evidence.delta_ic < 0]
+    risen = strong(results, lambda i: pruned_in_loop(results[i].evidence) and results[i].evidence.name not in tried)
     results, more = _retry_in_batches(rnd, results, risen, candidates, anchors, n_base, rediagnose, say, gates)
     return results, spent + more
 
