@@ -16,10 +16,9 @@ from __future__ import annotations
 import sys
 import time
 
-from eha_health.bench.discrepancy import EFFECTS, recording_alterations
+from eha_health.bench.discrepancy import EFFECTS, noisy_test, recording_alterations
 from eha_health.discrepancy.loop import analyse_fdi_test
 from eha_health.physics.faults import Faults
-from eha_health.physics.model import simulate
 from eha_health.physics.params import load
 
 #: (effect or None for noise only, faults (K_GM, K_FSJ, K_BKL)).
@@ -37,10 +36,7 @@ def main() -> None:
         if only and name not in only:
             continue
         faults = Faults(*k)
-        p = plant[name](ref) if name in plant else ref
-        r = simulate(params=p.with_effect_names(["sensor_noise"]), faults=faults, seed=500 + i)
-        if name in altered:
-            r = altered[name](r)
+        r = noisy_test(faults, 500 + i, plant.get(name), altered.get(name), ref)
         t0 = time.perf_counter()
         rep = analyse_fdi_test(r, max_effects=1, truth=faults.as_dict())
         print(f"{name or 'noise only'} at {k}: {rep.verdict}; first {', '.join(c.name for c in rep.candidates[:3])}; "

@@ -130,6 +130,17 @@ TWO_EFFECTS = (
 )
 
 
+def noisy_test(faults: Faults, seed: int, plant=None, alter=None, ref: ModelParams | None = None):
+    """One noisy FDI test of the reference EHA (``ref``, default the shipped one) at ``faults``:
+    ``plant`` (params -> params) puts an in-loop effect in the plant, ``alter`` (response -> response)
+    a recording effect on the recorded channels after the test; sensor noise with ``seed``. The
+    records of :func:`synthetic` and of the probes in tools/ (worn actuators, unlisted effects)."""
+    ref = ref if ref is not None else load("reference")
+    p = (plant(ref) if plant is not None else ref).with_effect_names(["sensor_noise"])
+    r = simulate(params=p, faults=faults, seed=seed)
+    return alter(r) if alter is not None else r
+
+
 def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, fault_sets=FAULT_SETS,
               two_effects: bool = True, without: tuple[str, ...] = ()) -> dict:
     """Run the loop on every effect x fault set (in-loop effects in the plant, recording effects
@@ -159,16 +170,12 @@ def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, faul
     # one untimed analysis first: on a fresh tree (an empty numba cache) the first case's start
     # diagnosis would otherwise be charged the kernels' compilation (measured: 5.5 s)
     t0 = time.perf_counter()
-    analyse_fdi_test(simulate(params=ref.with_effect_names(["sensor_noise"]), faults=Faults(0.0, 0.0, 0.0),
-                              seed=seed + 99), max_effects=1)
+    analyse_fdi_test(noisy_test(Faults(0.0, 0.0, 0.0), seed + 99, ref=ref), max_effects=1)
     warm_up_s = time.perf_counter() - t0
     # the machine's speed before and after (a shared machine drifts): the time figures compare by it
     machine = [monitor_run_s()]
     for i, (names, make, alter, f) in enumerate(todo):
-        p: ModelParams = make(ref).with_effect_names(["sensor_noise"])
-        r = simulate(params=p, faults=f, seed=seed + 100 + i)
-        if alter is not None:
-            r = alter(r)
+        r = noisy_test(f, seed + 100 + i, make, alter, ref)
         if without:
             r = dataclasses.replace(r, **{c: np.full(len(r.t), np.nan) for c in without})
         truth = f.as_dict()
