@@ -300,10 +300,13 @@ def test_fit_never_returns_worse_than_its_start():
 
 def test_settings_floor_grows_with_the_effects_added():
     st = fdi_settings()
-    # bench floor measured every in-loop candidate; a recording effect changes no simulated physics,
-    # nor does the recorded command's chain (the same model driven by the command the actuator got)
-    assert set(st.effect_floor) == {c.name for c in IN_LOOP_CANDIDATES} - set(COMMAND_CHAIN)
-    assert st.floor_with(["pressure_offset"]) == st.floor == st.floor_with(list(COMMAND_CHAIN))
+    # bench floor measured every candidate: in-loop ones in the plant, recording ones (the recorded
+    # command's chain too) on the record altered after the test. A recording effect changes no
+    # simulated physics, but undone on the record it leaves a form error of its own (a time base
+    # resampled: 2x the base floor on the current; the command off its zero moves the operating point)
+    assert set(st.effect_floor) == {c.name for c in CANDIDATES}
+    assert st.floor_with(["time_base"])["current"] > st.floor["current"]
+    assert st.floor_with(list(COMMAND_CHAIN))["position"] > st.floor["position"]
     base = st.floor_with([])
     assert base == st.floor
     both = st.floor_with(["compressibility", "sensor_delay"])
@@ -756,3 +759,37 @@ def test_a_velocity_feedback_gain_off_its_nominal_is_found_and_the_excess_over_n
     assert rep.after.excess_held_out["position"] <= rep.before.excess_held_out["position"] / 3
     assert rep.before.excess_held_out["position"] > 5e-6
     assert max(rep.after.errors.values()) <= 0.03 < max(rep.before.errors.values())
+
+
+def _bench_case(name, faults, seed):
+    """A record of `bench discrepancy` (seed 0): ``name``'s effect at ``faults``, noise ``seed``."""
+    from eha_health.bench.discrepancy import EFFECTS, noisy_test, recording_alterations
+    return noisy_test(faults, seed, dict(EFFECTS).get(name), dict(recording_alterations()).get(name))
+
+
+def test_a_further_round_starts_from_the_base_re_identified_with_the_effect():
+    """kp 15 % high at (0.3, 0.4, 0.3), up to two effects (the command's default): controller_gain is
+    selected with the faults where its refit's local path stopped, the residual is still structured,
+    and a second round from there added supply_pressure. Re-identified with controller_gain in the
+    model, the base fits the record and no second effect is invented."""
+    f = Faults(0.3, 0.4, 0.3)
+    said = []
+    rep = analyse_fdi_test(_bench_case("controller_gain", f, 144), truth=f.as_dict(), progress=said.append)
+    assert rep.selected == ["controller_gain"]
+    assert any(m.startswith("base re-identified with controller_gain") for m in said)
+    assert max(rep.after.errors.values()) <= 0.01
+
+
+def test_a_recording_effects_own_form_error_starts_no_further_round():
+    """A time base 0.5 % fast at (0.3, 0.4, 0.3): undone by resampling it leaves more than the base
+    floor (its effect floor in data/discrepancy.yaml: 2x on the current), and a second round used to
+    run on that form error (1215 model runs for nothing). Against its own floor the residual with
+    time_base is noise."""
+    from eha_health.discrepancy.settings import fdi_settings
+    st = fdi_settings()
+    assert st.effect_floor["time_base"]["current"] > st.floor["current"]
+    f = Faults(0.3, 0.4, 0.3)
+    said = []
+    rep = analyse_fdi_test(_bench_case("time_base", f, 216), truth=f.as_dict(), progress=said.append)
+    assert rep.selected == ["time_base"]
+    assert not any(m.startswith("round 2") for m in said)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..discrepancy.settings import DEFAULT_MAX_EFFECTS
 from ..physics.faults import FAULT_NAMES
 from .common import (UsageError, fitness_option, json_flag, load_run, load_test, method_option, progress, quiet_flag, seed_option,
                      test_option)
@@ -173,7 +174,8 @@ def register(sub) -> None:
                         parents=[test_option("MCAP: test window id"), seed_option(0, "fdi: seed of the diagnosis"),
                                  json_flag("one JSON object: before, after, candidates, selected"), quiet_flag()])
     dc.add_argument("run", help="CSV (simulate or import format) or MCAP bag")
-    dc.add_argument("--max-effects", type=int, default=2, help="most effects to add (default 2)")
+    dc.add_argument("--max-effects", type=int, default=DEFAULT_MAX_EFFECTS,
+                    help=f"most effects to add (default {DEFAULT_MAX_EFFECTS})")
     dc.add_argument("--mode", choices=("auto", "fdi", "rig"), default="auto",
                     help="fdi: an FDI test of the shipped EHA (faults re-identified); rig: calibrate the "
                          "nominal loop to a measured rig first (auto: fdi when the record is a whole FDI "

@@ -21,7 +21,7 @@ from ..signals import frequency
 from .candidates import CANDIDATES, COMMAND_CHAIN, STRUCTURAL
 from .loop import quantile_segments, run_loop
 from .report import DiscrepancyReport
-from .settings import Settings
+from .settings import DEFAULT_MAX_EFFECTS, Settings
 
 #: Nominal parameters calibrated to a rig (start values: the shipped monitor).
 RIG_KNOBS = (
@@ -65,7 +65,7 @@ def rig_record(response, zero_samples: int = 2000) -> Record:
     return rec
 
 
-def analyse_rig(response, max_effects: int = 2, fit_fraction: float = 0.7, progress=None,
+def analyse_rig(response, max_effects: int = DEFAULT_MAX_EFFECTS, fit_fraction: float = 0.7, progress=None,
                 grid: int = 12) -> DiscrepancyReport:
     """Calibrate :data:`RIG_KNOBS` on the first ``fit_fraction``, run the loop, predict the rest.
 

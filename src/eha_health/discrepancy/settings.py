@@ -8,6 +8,9 @@ from pathlib import Path
 
 import yaml
 
+#: Most effects one analysis adds, by default (``eha-health discrepancy --max-effects``).
+DEFAULT_MAX_EFFECTS = 2
+
 
 @dataclass(frozen=True)
 class Settings:
