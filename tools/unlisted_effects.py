@@ -24,7 +24,7 @@ import sys
 import numpy as np
 from scipy.signal import butter, cont2discrete, lfilter
 
-from eha_health.bench.discrepancy import all_late, noisy_test, drifting, fast_clock, lagged, late, offset, scaled
+from eha_health.bench.discrepancy import all_late, drifting, fast_clock, lagged, late, offset, reference_run, scaled
 from eha_health.discrepancy.loop import analyse_fdi_test
 from eha_health.physics.faults import Faults
 from eha_health.physics.params import load
@@ -206,7 +206,7 @@ def main() -> None:
     names = sys.argv[1:] or list(dict.fromkeys(list(ALTERED) + list(PLANT)))   # a name in both: plant and record
     ref, faults = load("reference"), Faults(0.3, 0.4, 0.3)
     for name in names:
-        r = noisy_test(faults, 777, PLANT.get(name), ALTERED.get(name), ref)
+        r = reference_run(faults, 777, PLANT.get(name), ALTERED.get(name), ref)
         try:
             rep = analyse_fdi_test(r, max_effects=2, truth=faults.as_dict())
         except ValueError as e:        # a record the data checks refuse before any fit

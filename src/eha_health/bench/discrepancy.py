@@ -131,14 +131,15 @@ TWO_EFFECTS = (
 )
 
 
-def noisy_test(faults: Faults, seed: int, plant=None, alter=None, ref: ModelParams | None = None):
-    """One noisy FDI test of the reference EHA (``ref``, default the shipped one) at ``faults``:
-    ``plant`` (params -> params) puts an in-loop effect in the plant, ``alter`` (response -> response)
-    a recording effect on the recorded channels after the test; sensor noise with ``seed``. The
-    records of :func:`synthetic` and of the probes in tools/ (worn actuators, unlisted effects)."""
+def reference_run(faults: Faults, seed: int | None = None, plant=None, alter=None, ref: ModelParams | None = None):
+    """One FDI test of the reference EHA (``ref``, default the shipped one) at ``faults``: ``plant``
+    (params -> params) puts an in-loop effect in the plant, ``alter`` (response -> response) a
+    recording effect on the recorded channels after the test; sensor noise with ``seed`` (None: a
+    clean run). The records of :func:`synthetic`, of ``bench floor``'s effect floors and of the
+    probes in tools/ (worn actuators, unlisted effects)."""
     ref = ref if ref is not None else load("reference")
-    p = (plant(ref) if plant is not None else ref).with_effect_names(["sensor_noise"])
-    r = simulate(params=p, faults=faults, seed=seed)
+    p = plant(ref) if plant is not None else ref
+    r = simulate(params=p.with_effect_names(["sensor_noise"]) if seed is not None else p, faults=faults, seed=seed)
     return alter(r) if alter is not None else r
 
 
@@ -172,12 +173,12 @@ def synthetic(seed: int = 0, n_noise: int = 6, progress=None, effects=None, faul
     # one untimed analysis first: on a fresh tree (an empty numba cache) the first case's start
     # diagnosis would otherwise be charged the kernels' compilation (measured: 5.5 s)
     t0 = time.perf_counter()
-    analyse_fdi_test(noisy_test(Faults(0.0, 0.0, 0.0), seed + 99, ref=ref), max_effects=1)
+    analyse_fdi_test(reference_run(Faults(0.0, 0.0, 0.0), seed + 99, ref=ref), max_effects=1)
     warm_up_s = time.perf_counter() - t0
     # the machine's speed before and after (a shared machine drifts): the time figures compare by it
     machine = [monitor_run_s()]
     for i, (names, make, alter, f) in enumerate(todo):
-        r = noisy_test(f, seed + 100 + i, make, alter, ref)
+        r = reference_run(f, seed + 100 + i, make, alter, ref)
         if without:
             r = dataclasses.replace(r, **{c: np.full(len(r.t), np.nan) for c in without})
         truth = f.as_dict()

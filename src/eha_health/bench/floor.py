@@ -21,7 +21,7 @@ from ..physics.faults import Faults
 from ..physics.model import simulate
 from ..physics.params import load
 from ..signals.channels import MEASURED
-from .discrepancy import EFFECTS, recording_alterations
+from .discrepancy import EFFECTS, recording_alterations, reference_run
 
 
 def residual_floor(n: int = 12, seed: int = 2024, progress=None) -> dict:
@@ -64,8 +64,7 @@ def effect_floor(n: int = 6, seed: int = 2025, progress=None) -> dict:
         rows = []
         for i in range(n):
             f = Faults(*rng.uniform(0.0, 1.0, 3))
-            r = simulate(params=make(ref) if make is not None else ref, faults=f)
-            rec = Record.from_response(alter(r) if alter is not None else r)
+            rec = Record.from_response(reference_run(f, None, make, alter, ref))
             model = KnobModel(mon, FAULT_KNOBS + cand.knobs, rec)
             res = Residual(rec)
             G = candidate_grid(np.array(f.as_tuple()), cand, 48)
