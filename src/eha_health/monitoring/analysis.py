@@ -2,11 +2,12 @@
 from __future__ import annotations
 
 from ..discrepancy.loop import analyse_fdi_test
+from ..discrepancy.settings import DEFAULT_MAX_EFFECTS
 from ..identification.diagnose import diagnose
 from ..signals.response import Response
 
 
-def analyse_window(response: Response, discrepancy: bool = False, max_effects: int = 1, **diagnose_args):
+def analyse_window(response: Response, discrepancy: bool = False, max_effects: int = DEFAULT_MAX_EFFECTS, **diagnose_args):
     """``(diagnosis, report or None)``: :func:`~eha_health.identification.diagnose.diagnose` with
     ``diagnose_args`` (method, fitness, seed), then the discrepancy loop started from it."""
     d = diagnose(response, **diagnose_args)

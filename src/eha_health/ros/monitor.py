@@ -38,6 +38,7 @@ from std_srvs.srv import Trigger
 from msg_bridge import contract as C
 from msg_bridge import convert as cv
 
+from ..discrepancy.settings import DEFAULT_MAX_EFFECTS
 from ..identification.diagnose import DEFAULT_METHOD, METHODS
 from ..identification.fitness import FITNESSES
 from ..io.bagrun import HISTORY_META
@@ -80,7 +81,7 @@ PARAMS = (
     Param("exit_after", 0, "stop after this many windows (0: run on)", 0, INT_MAX),
     Param("discrepancy", False, "after each diagnosis run the discrepancy loop; a structured residual -> WARN "
           "'model lacks: ...' (or, when no candidate explains it, WARN that the coefficients may be biased)"),
-    Param("discrepancy_max_effects", 1, "most effects the loop may add", 0, 8),
+    Param("discrepancy_max_effects", DEFAULT_MAX_EFFECTS, "most effects the loop may add (as `eha-health discrepancy`)", 0, 8),
     Param("max_fill_samples", 0, "fill lost samples of a measured channel by linear interpolation when no gap is "
           "longer than this many samples (and at most 10 % are lost); 0: refuse any gap", 0, 100),
     Param("best_effort", False, "subscribe to the inputs BEST_EFFORT (a lossy link; matches both kinds of "
