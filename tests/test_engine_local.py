@@ -1,4 +1,7 @@
-"""The engine's bounded least squares keeps a start that lies on a bound where it is."""
+"""The engine's bounded least squares keeps a start that lies on a bound where it is; a run cut at
+the samples an objective reads is the whole run's."""
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -12,6 +15,7 @@ from eha_health.identification.record import Record
 from eha_health.identification.residual import Residual
 from eha_health.physics.faults import Faults
 from eha_health.physics.params import load
+from eha_health.physics.sequence import FDISequence
 
 TRUE_LEAK = 5e-12       # m^3/(s Pa): the leakage knob's typical value
 
@@ -86,3 +90,33 @@ def test_a_recording_knobs_jacobian_column_reuses_the_trial_points_simulation(le
     J1 = jacobian_at(p, x, r1, sim)
     assert np.array_equal(r1, r) and np.array_equal(J1, J)
     assert m.runs - runs == 1 + 3            # the trial point, then the three fault columns only
+
+
+@pytest.mark.parametrize("kind", ["1 kHz", "logged at 500 Hz", "after a test"])
+def test_a_run_cut_at_a_horizon_is_the_whole_runs_first_samples(leaky, kind):
+    # the kernel is causal: simulating the first n samples gives those of the whole run to the bit
+    # (a record below the command rate too: upsampled whole, then cut; and after a preamble), NaN
+    # after them, one run counted with the model's
+    m0, _, x0 = leaky
+    rec = m0.record
+    if kind == "logged at 500 Hz":
+        rec = dataclasses.replace(rec, t=rec.t[::2], command=rec.command[::2],
+                                  channels={c: y[::2] for c, y in rec.channels.items()})
+    elif kind == "after a test":
+        rec = dataclasses.replace(rec, preroll=FDISequence().preamble(rec.sample_rate))
+    m = KnobModel(m0.base, m0.knobs, rec)
+    assert (m.oversample > 1) == (kind == "logged at 500 Hz")
+    n = int(0.43 * len(rec))
+    X = np.array([x0, [0.5, 0.1, 0.7, 3e-12]])
+    whole = m.run(X)
+    cut = m.until(n)
+    runs = m.runs
+    part = cut.run(X)
+    assert m.runs - runs == 2 and cut.runs == m.runs
+    assert np.array_equal(part[:, :n], whole[:, :n]) and np.isnan(part[:, n:]).all()
+    res = Residual(rec, np.arange(len(rec)) < n)
+    assert res.horizon == n and res.costs(part).tolist() == res.costs(whole).tolist()
+    assert m.until(None) is m and m.until(len(rec)) is m
+    # a measurement-chain knob acts on the whole recorded output: such a model is not cut
+    mr = KnobModel(m0.base, FAULT_KNOBS + BY_NAME["position_skew"].knobs, rec)
+    assert mr.until(n) is mr

@@ -164,7 +164,10 @@ def _refit(rnd: Round, mc: KnobModel, cand: Candidate, anchors: list[np.ndarray]
     n = st.grid if sc is None or cand.kind == RECORDING_CHAIN else st.scan
     scans = anchors if sc is None else [a for a in anchors if not np.array_equal(a, rnd.base.x)]
     G = np.vstack([candidate_grid(a, cand, n) for a in scans]) if scans else np.zeros((0, len(mc.knobs)))
-    costs = rnd.r_fit.costs(mc.run(G)) if len(G) else np.zeros(0)
+    # the scan and the fits read the fit part only: their runs stop at its end (the model is causal;
+    # an in-loop candidate's, a recording one's acts on the whole output: KnobModel.until)
+    fit_part = mc.until(rnd.r_fit.horizon)
+    costs = rnd.r_fit.costs(fit_part.run(G)) if len(G) else np.zeros(0)
     if sc is not None:
         G, costs = np.vstack([G, sc.rows]), np.concatenate([costs, sc.costs])
     # a round on frequency evidence: the fit part's cost is mostly noise, and a candidate that trades
@@ -176,7 +179,7 @@ def _refit(rnd: Round, mc: KnobModel, cand: Candidate, anchors: list[np.ndarray]
             starts.append(G[i])
         if len(starts) >= st.starts + (rnd.structured == FREQUENCY):
             break
-    problem = Problem(mc, rnd.r_fit)
+    problem = Problem(fit_part, rnd.r_fit)
     # the fits from distinct starts are independent: one thread each (a trial point is one run, on
     # one core; a refit alone -- an overlap, a retry -- left the other core idle). Each fit and the
     # choice between them are what they were in sequence.
@@ -384,6 +387,7 @@ def evaluate(rnd: Round, cand: Candidate, anchors: list[np.ndarray], sc: Screen 
         projection_share(rnd.base.jacobian, _signature(rnd, mc, cand), rnd.base.residual)
     best = _refit(rnd, mc, cand, anchors, sc)
     out = mc.run(best.x)[0]
+    best.output = out           # (the refit's own runs stopped at the fit part's end)
     sd = best.std(autocorr_inflation(best.residual, len(rnd.r_fit.channels)))
     return Result(_judge(rnd, cand, mc, best.x, out, best.cost, share, sd, True), mc, best)
 

@@ -140,6 +140,12 @@ def refine(problem: Problem, x0, history: list) -> FitResult:
     return powell(problem, x0, history)
 
 
+def _staged(model: KnobModel, stage_residual, free=None) -> Problem:
+    """The fit of the stage residual, its runs stopped after the last sample it reads (the step's end:
+    1.5 s of the 3.5 s test; :meth:`~.problem.KnobModel.until`)."""
+    return Problem(model.until(getattr(stage_residual, "horizon", None)), stage_residual, free)
+
+
 def search(problem: Problem, method: str, x_start: np.ndarray, stages, seed: int, options: GAOptions,
            history: list, progress=None, stage_residual=None) -> FitResult:
     """The method's global search then the local refinement; returns the estimate (``fast``: its
@@ -149,7 +155,7 @@ def search(problem: Problem, method: str, x_start: np.ndarray, stages, seed: int
             progress(f"GA generation {gen:2d}  best fitness {best:.6g}")
 
     if method == "fast":
-        r = least_squares(Problem(problem.model, stage_residual), x_start, history=history, output=False, **FAST)
+        r = least_squares(_staged(problem.model, stage_residual), x_start, history=history, output=False, **FAST)
         if progress:
             progress("fast: joint least squares on the stage residual -> "
                      + " ".join(f"{n}={v:.4f}" for n, v in zip(FAULT_NAMES, r.x)))
@@ -249,12 +255,12 @@ def after_a_test(model: KnobModel, objective, stage, sequence: FDISequence, est:
     if not est.cost > AFTER_TEST_RATIO * pre_cost:
         model.runs += after.runs
         return None
-    x = least_squares(Problem(after, stage), est.x, history=history, output=False, **FAST).x
+    x = least_squares(_staged(after, stage), est.x, history=history, output=False, **FAST).x
     # the stage segments read K_BKL from the take-up of the play before the first ramp, and a
     # jack left against the side the ramp pushes it to takes none: the sine's reversals, on the
     # whole-test residual, tell it; then K_GM and K_FSJ again, with it
     x = backlash_scan(Problem(after, objective), x, history)
-    follow = least_squares(Problem(after, stage, np.array([0, 1])), x, history=history, output=False, **FAST)
+    follow = least_squares(_staged(after, stage, np.array([0, 1])), x, history=history, output=False, **FAST)
     q_after = fit_quality(stage, follow.cost, record)
     whole_rest, whole_after = objective.cost(model.run(est.x)[0]), objective.cost(after.run(follow.x)[0])
     if progress:
@@ -445,7 +451,7 @@ def _identify(response: Response, method: str, fitness: str, seed: int, start: F
             record, problem, guard = model.record, Problem(model, objective), "after a test"
             guard_warn.append(note)
         if q > GUARD_FACTOR:
-            near = probe(Problem(model, stage), est, history)
+            near = probe(_staged(model, stage), est, history)
             q_near = fit_quality(stage, near.cost, record) if near is not None else float("inf")
             if progress:
                 progress(f"guard failed ({q:.1f}x the floor); local probe: "

@@ -99,6 +99,7 @@ class Stage:
     objective: Callable[[np.ndarray], float]
     label: str
     bounded: bool = False       # bounded scalar search (fmincon-like) instead of Nelder-Mead
+    until: int | None = None    # samples the objective reads from the start (None: all): the rest is not simulated
 
 
 def fdi_stages(fitness, record: Record, sequence: FDISequence) -> tuple[Stage, ...]:
@@ -120,6 +121,10 @@ def fdi_stages(fitness, record: Record, sequence: FDISequence) -> tuple[Stage, .
         def bkl(o):
             return float(np.mean(((o[ramp, O_VEL] - y["velocity"][ramp]) / sv) ** 2)
                          + np.mean(((o[ramp, O_POS] - y["position"][ramp]) / sx) ** 2))
+        # (each objective reads up to the end of its segment: a stage run stops there)
+        ramp_end, step_end = (int(np.flatnonzero(m)[-1]) + 1 for m in (ramp, step))
+        return (Stage(1, fsj, "K_FSJ", until=ramp_end), Stage(0, gm, "K_GM", until=step_end),
+                Stage(2, bkl, "K_BKL", bounded=True, until=ramp_end))
     return (Stage(1, fsj, "K_FSJ"), Stage(0, gm, "K_GM"), Stage(2, bkl, "K_BKL", bounded=True))
 
 

@@ -10,6 +10,7 @@ problem and algorithm and scipy returns one result object.
 """
 from __future__ import annotations
 
+import copy
 import threading
 from dataclasses import dataclass
 
@@ -90,7 +91,33 @@ class KnobModel:
         self.base = base
         self.knobs = tuple(knobs)
         self.record = record
-        self.runs = 0
+        self.horizon = None         # simulate only the first samples (:meth:`until`); None: all
+        self._runs = [0]            # shared with the views of :meth:`until`
+
+    @property
+    def runs(self) -> int:
+        """Simulations run (this model and its :meth:`until` views together)."""
+        return self._runs[0]
+
+    @runs.setter
+    def runs(self, value: int) -> None:
+        self._runs[0] = int(value)
+
+    def until(self, n: int | None) -> "KnobModel":
+        """A view of this model that simulates only the record's first ``n`` samples (the rows after
+        them are NaN), counting its runs with this model's. The kernel is causal, so those samples
+        are the whole run's to the bit: an objective that reads no later sample (the FDI stage
+        objectives read the ramp, 1.0 s of the 3.5 s test, or the ramp and the step, 1.5 s) costs
+        that fraction of a run. The model itself when ``n`` is None or the whole record, or when it
+        has measurement-chain knobs (they act on the whole recorded output: a skew reads later samples)."""
+        if n is None or int(n) >= len(self.record) or any(k.recording for k in self.knobs):
+            return self
+        n = int(n)
+        if n < 1:
+            raise ValueError(f"horizon must be at least 1 sample, got {n}")
+        view = copy.copy(self)
+        view.horizon = n
+        return view
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -161,8 +188,14 @@ class KnobModel:
         if m > 1:
             cmd, load = _upsampled(cmd, m), None if load is None else _upsampled(load, m)
         sims = np.empty((len(P_u), len(self.record), N_OUT))
+        h = len(self.record) if self.horizon is None else self.horizon
+        if h < len(self.record):
+            # (upsampled whole, then cut: the interpolation up to the horizon is the whole run's)
+            end = (n0 + h) * m
+            cmd, load = cmd[:end], None if load is None else load[:end]
+            sims[:, h:] = np.nan
         if new.any():
-            sims[new] = simulate_packed(P_u[new], cmd, load)[:, n0 * m::m]
+            sims[new, :h] = simulate_packed(P_u[new], cmd, load)[:, n0 * m::m]
         if not new.all():
             sims[~new] = known[1]
         return sims[np.ravel(inverse)]

@@ -68,6 +68,12 @@ class Residual:
             counts = np.diff(np.append(self._starts, self.n))
             self._block = (1.0 / np.sqrt(counts))[:, None]
 
+    @property
+    def horizon(self) -> int:
+        """Samples of the record up to the last one this residual reads (a model simulated that far,
+        :meth:`~.problem.KnobModel.until`, gives the same residual)."""
+        return int(np.flatnonzero(self.mask)[-1]) + 1
+
     def __call__(self, out: np.ndarray) -> np.ndarray:
         """The residual vector of one output ``[n, N_OUT]`` (sample-major, channels inner)."""
         return self._batch(out[None]).ravel()

@@ -31,11 +31,12 @@ def sequential(problem: Problem, x0, stages: tuple[Stage, ...], history: list | 
     cost = float("nan")
     for st in stages:
         knob, lo, hi = m.knobs[st.knob], m.lower[st.knob], m.upper[st.knob]
+        ms = m.until(st.until)      # a stage's runs stop where its objective stops reading
 
-        def f(v, st=st):
+        def f(v, st=st, ms=ms):
             xi = x.copy()
             xi[st.knob] = float(np.clip(np.ravel(v)[0], lo, hi))
-            c = st.objective(m.run(xi)[0])
+            c = st.objective(ms.run(xi)[0])
             if history is not None:
                 history.append(c)
             return c

@@ -77,6 +77,9 @@ class StartTable:
         seq = sequence or FDISequence()
         rate = params.integration.sample_rate
         t = seq.times(rate)
+        # the signatures read the ramp and the step: the runs stop at the step's end (the model is
+        # causal: the same samples as the whole test's runs)
+        t = t[:int(np.flatnonzero(seq.mask("step", t))[-1]) + 1]
         faults = [Faults(0.0, k, 0.0) for k in FSJ_LEVELS] + [Faults(k, 0.0, 0.0) for k in GM_LEVELS]
         faults += [Faults(g, 0.0, b) for g in GRID_GM for b in GRID_BKL]
         outs = simulate_batch(params, faults, seq.command(t))
