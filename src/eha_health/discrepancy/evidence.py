@@ -165,7 +165,7 @@ def _refit(rnd: Round, mc: KnobModel, cand: Candidate, anchors: list[np.ndarray]
     scans = anchors if sc is None else [a for a in anchors if not np.array_equal(a, rnd.base.x)]
     G = np.vstack([candidate_grid(a, cand, n) for a in scans]) if scans else np.zeros((0, len(mc.knobs)))
     # the scan and the fits read the fit part only: their runs stop at its end (the model is causal;
-    # an in-loop candidate's, a recording one's acts on the whole output: KnobModel.until)
+    # a recording candidate acts on the whole recorded output, so its model runs whole: KnobModel.until)
     fit_part = mc.until(rnd.r_fit.horizon)
     costs = rnd.r_fit.costs(fit_part.run(G)) if len(G) else np.zeros(0)
     if sc is not None:
