@@ -139,7 +139,8 @@ def test_fleet_diagnose_on_a_local_cluster_is_idempotent_and_logs_failures(bags,
     (tmp_path / "manifest.csv").write_text(
         "actuator_id,time_h,path\nU900,5,broken.mcap\nU901,5,missing.csv\n")
     bad = read_manifest(tmp_path / "manifest.csv")
-    s = diagnose_fleet(recs + bad, db, method=METHOD, client=client)
+    # three recordings per task: a failed file in a task with good ones fails alone
+    s = diagnose_fleet(recs + bad, db, method=METHOD, client=client, per_task=3)
     assert (s["diagnosed"], s["skipped"], s["failed"]) == (4, 0, 2), s
     reasons = {Path(f["path"]).name: f["reason"] for f in s["failures"]}
     assert "broken.mcap" in reasons["broken.mcap"] and "cannot read" in reasons["missing.csv"]

@@ -1,6 +1,7 @@
 """The fleet batch (client side): recordings -> Dask tasks -> the health history store.
 
-One task per recording (:func:`.worker.diagnose_recording`) on a Dask distributed cluster: a
+A few recordings per task (:func:`.worker.diagnose_recordings`, :data:`RECORDINGS_PER_TASK`: Dask's
+and the client's costs per task are then paid once for them) on a Dask distributed cluster: a
 ``LocalCluster`` of worker processes on the loopback interface by default, or an existing
 scheduler (``scheduler="tcp://host:8786"``). Only this client writes the store.
 
@@ -38,7 +39,7 @@ from ..physics.params import load
 from ..prognostics.config import PrognosticsError
 from ..prognostics.store import HealthRecord, HistoryStore, sha256_file
 from .recordings import FleetError, Recording, complete_identity
-from .worker import FleetWorkerSetup, diagnose_recording, worker_info
+from .worker import FleetWorkerSetup, diagnose_recordings, worker_info
 
 #: The environment a LocalCluster worker process starts with (Dask's ``pre-spawn-environ``): the
 #: BLAS and OpenMP pools at one thread as Dask sets them, numba's too (read when numba is imported),
@@ -82,6 +83,10 @@ def dask_config_yaml() -> str:
 
 
 FAILURE_COLUMNS = ("wall_time_utc", "path", "source_hash", "actuator_id", "time_h", "reason")
+
+
+#: Recordings per Dask task (fewer when the batch is small: at least two tasks per worker).
+RECORDINGS_PER_TASK = 4
 
 
 def failures_path(history: str | Path) -> Path:
@@ -211,8 +216,11 @@ def record_of(rec: Recording, h: str, res: dict) -> HealthRecord:
 
 def diagnose_fleet(recordings: list[Recording], history: str | Path, scheduler: str | None = None,
                    workers: int = 2, method: str = DEFAULT_METHOD, seed: int = 0, discrepancy: bool = False,
-                   progress: Callable[[str], None] | None = None, client=None) -> dict:
+                   progress: Callable[[str], None] | None = None, client=None, per_task: int | None = None) -> dict:
     """Diagnose every recording not yet in the store at ``history`` and append the results.
+
+    ``per_task``: recordings per Dask task (default :data:`RECORDINGS_PER_TASK`, fewer when the
+    batch is small: at least two tasks per worker).
 
     Returns the summary: ``recordings, diagnosed, skipped, failed, failures`` (first 20:
     path, reason), ``wall_time_s`` (all of it, cluster start included), ``batch_time_s``
@@ -242,7 +250,8 @@ def diagnose_fleet(recordings: list[Recording], history: str | Path, scheduler: 
             with contextlib.ExitStack() as stack:
                 if client is None:
                     client = stack.enter_context(dask_client(scheduler, workers))
-                summary.update(_run(client, todo, store, failures, method, seed, discrepancy, progress, summary))
+                summary.update(_run(client, todo, store, failures, method, seed, discrepancy, progress, summary,
+                                    per_task))
         summary["failed"] = failures.count
         summary["failures"] = failures.items[:20]
         summary["wall_time_s"] = time.perf_counter() - t_start
@@ -252,7 +261,7 @@ def diagnose_fleet(recordings: list[Recording], history: str | Path, scheduler: 
 
 
 def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, seed: int, discrepancy: bool,
-         progress, summary: dict) -> dict:
+         progress, summary: dict, per_task: int | None = None) -> dict:
     from distributed import as_completed
     # the calibrated monitor goes to every worker once; tasks carry only a reference to it
     params = client.scatter(load("monitor"), broadcast=True)
@@ -261,8 +270,17 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
     pending: dict[str, _Pending] = {}
     for rec, h in sorted(todo, key=lambda x: (x[0].actuator_id, x[0].time_h)):
         pending.setdefault(rec.actuator_id, _Pending()).order.append(h)
-    futures = [client.submit(diagnose_recording, str(rec.path), params, method, seed, discrepancy,
-                             key=f"eha-diagnose-{h}", pure=False) for rec, h in todo]
+    # a few recordings per task (in the submission order: earliest tests first), at least two tasks per
+    # worker so that none idles at the end
+    n_workers = max(len(client.scheduler_info().get("workers", {})), 1)
+    size = per_task if per_task is not None else max(1, min(RECORDINGS_PER_TASK, len(todo) // (2 * n_workers)))
+    if size < 1:
+        raise FleetError(f"recordings per task must be >= 1, got {size}")
+    chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
+    futures = [client.submit(diagnose_recordings, [str(rec.path) for rec, _ in chunk], params, method, seed,
+                             discrepancy, key=f"eha-diagnose-{chunk[0][1]}-{len(chunk)}", pure=False)
+               for chunk in chunks]
+    hashes = {f.key: [h for _, h in chunk] for f, chunk in zip(futures, chunks)}
     done = ok = 0
     last_line = 0.0
     threads: set[int] = set()
@@ -284,24 +302,27 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
                 continue
             done += added
 
-    for n, fut in enumerate(as_completed(futures), start=1):
-        h = fut.key.removeprefix("eha-diagnose-")
-        rec = by_hash[h]
+    n = 0
+    for fut in as_completed(futures):
+        task = hashes[fut.key]
         try:
-            res = fut.result()
-        except Exception as e:   # the task itself died (worker killed, ...): this file fails, the batch goes on
-            res = {"error": f"task failed: {type(e).__name__}: {e}"}
+            results = fut.result()
+        except Exception as e:   # the task itself died (worker killed, ...): its files fail, the batch goes on
+            results = [{"error": f"task failed: {type(e).__name__}: {e}"}] * len(task)
         fut.release()
-        if "error" in res:
-            failures.add(rec, res["error"], h)
-            pending[rec.actuator_id].ready[h] = None
-        else:
-            ok += 1
-            threads.add(res["numba_threads"])
-            for k in times:
-                times[k] += res.get(k, 0.0)
-            pending[rec.actuator_id].ready[h] = res
-        flush(rec.actuator_id)
+        for h, res in zip(task, results):
+            n += 1
+            rec = by_hash[h]
+            if "error" in res:
+                failures.add(rec, res["error"], h)
+                pending[rec.actuator_id].ready[h] = None
+            else:
+                ok += 1
+                threads.add(res["numba_threads"])
+                for k in times:
+                    times[k] += res.get(k, 0.0)
+                pending[rec.actuator_id].ready[h] = res
+            flush(rec.actuator_id)
         el = time.perf_counter() - t0
         if progress and (el - last_line >= 2.0 or n == len(todo)):
             last_line = el

@@ -110,3 +110,11 @@ def diagnose_recording(path: str, params, method: str = DEFAULT_METHOD, seed: in
     except ValueError:   # not on a worker (in-process serial run)
         pass
     return out
+
+
+def diagnose_recordings(paths: list[str], params, method: str = DEFAULT_METHOD, seed: int = 0,
+                        discrepancy: bool = False) -> list[dict]:
+    """:func:`diagnose_recording` of each of ``paths`` in turn, in one task: Dask's and the client's
+    costs per task are paid once for them (a diagnosis takes 0.07 s; those costs were 7 % of all CPU
+    with one recording per task, measured by `eha-health bench fleet`)."""
+    return [diagnose_recording(p, params, method, seed, discrepancy) for p in paths]
