@@ -14,14 +14,12 @@ the 10/50/90 % quantiles of median/true. The figures of docs/prognostics.md ("La
 does not simulate") come from this script.
 """
 import argparse
-import csv
 import tempfile
-from pathlib import Path
 
 import numpy as np
 
-from eha_health.prognostics import prognose
 from eha_health.prognostics.config import load_settings
+from rul_probe import draw_unit, report
 
 THRESHOLD = 0.915        # K_FSJ threshold of `eha-health thresholds`
 NU = 0.002               # gamma-process scale: Var K = NU E K
@@ -45,9 +43,7 @@ def fleet(law: str, units: int, rng: np.random.Generator) -> tuple[list[dict], d
     h = lambda s: LAWS[law](np.clip(s, 0.0, None))    # noqa: E731
     rows, truth = [], {}
     for u in range(units):
-        life = 1000.0 * np.exp(rng.normal(0.0, 0.3))
-        onset = rng.uniform(0.05, 0.25) * life
-        t = np.arange(0.0, onset + rng.uniform(0.4, 0.8) * life, 60.0)
+        life, onset, t = draw_unit(rng, 60.0)
         dmu = np.diff(THRESHOLD * h((np.concatenate([[t[0]], t]) - onset) / life))
         k = np.cumsum(rng.gamma(np.maximum(dmu, 1e-12) / NU, NU))
         tt, kt = t[-1], k[-1]
@@ -76,22 +72,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         for law in a.laws or list(LAWS):
             rows, truth = fleet(law, a.units, np.random.default_rng(a.seed))
-            path = Path(d) / f"{law}.csv"
-            with open(path, "w", newline="") as f:
-                w = csv.DictWriter(f, list(rows[0]))
-                w.writeheader()
-                w.writerows(rows)
-            out = prognose(path, settings=settings)["actuators"]
-            got = [(out[u]["faults"]["fsj"], r) for u, r in truth.items()]
-            given = [(F, r) for F, r in got if F["rul_median_h"] is not None]
-            inside = sum((F["rul_p05_h"] or 0.0) <= r <= (F["rul_p95_h"] if F["rul_p95_h"] is not None else np.inf)
-                         for F, r in given)
-            close = sum(abs(F["rul_median_h"] - r) <= 0.2 * r for F, r in given)
-            q = np.percentile([F["rul_median_h"] / r for F, r in given], [10, 50, 90]) if given else [np.nan] * 3
-            print(f"{law:12s} RUL given {len(given):2d}/{len(got)}; 90 % interval covers {inside / len(got):4.0%}; "
-                  f"median within 20 % {close / len(got):4.0%}; median/true 10/50/90 % {q[0]:.2f} / {q[1]:.2f} / {q[2]:.2f}",
-                  flush=True)
-
+            report(f"{law:12s}", rows, truth, d, settings)
 
 if __name__ == "__main__":
     main()

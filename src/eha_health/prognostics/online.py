@@ -13,9 +13,10 @@ stored points with the new span (the grids are defined per span), so long runs k
 well-placed grid. Between regrids, :meth:`OnlineFault.fit` equals the batch fit of the
 same points with the same span (tested).
 
-Wiring: the monitor keeps one :class:`OnlineFault` per (actuator, fault) after onset and
-calls :meth:`OnlineFault.update` after each appended diagnosis; ``prognose`` (batch) stays
-the reference and is what the CLI runs.
+Use: a caller that follows one fault test by test keeps one :class:`OnlineFault` after the onset
+and calls :meth:`OnlineFault.update` after each diagnosis. The monitor does not: it appends each
+diagnosis to the history and runs ``prognose`` for its actuator (``monitoring/prognosis.py``),
+which is the reference and what the CLI runs.
 """
 from __future__ import annotations
 

@@ -1,6 +1,8 @@
 """Remaining useful life as a distribution, per fault and overall (CLI: ``eha-health prognose``).
 
-For each fault of each actuator, the tests since the fault's last repair; its onset anchor
+For each fault of each actuator, the tests since the fault's last repair, less those far off
+their neighbours (failed diagnoses, :mod:`scatter`; a last test off the trend gives an even
+mixture of the predictions with and without it); its onset anchor
 (:func:`degradation.degradation_segment`) and ``prognosis.onset_candidates`` onset times from the
 first post-repair test to it, each with the models of :mod:`degradation` fitted to every
 post-repair point; weights over (onset, model) from their criteria; then S Monte Carlo samples
@@ -42,6 +44,7 @@ import numpy as np
 from .config import PrognosticsError, Settings, load_settings
 from .degradation import (ModelFit, Series, akaike_weights, degradation_segment, fit_models,
                           shape_g, shape_g_inv)
+from .scatter import isolated_outliers
 from .thresholds import FAULTS, threshold_values
 
 CHUNK = 256   # series per sampling chunk (memory ~ CHUNK x samples x 30 floats)
@@ -57,12 +60,13 @@ class Draws:
     z_ig: np.ndarray
     u_ig: np.ndarray
     u_onset: np.ndarray
+    u_last: np.ndarray   # with or without a last test that is off the trend
 
     @classmethod
     def make(cls, seed: int, fault_index: int, m: int) -> "Draws":
         rng = np.random.default_rng([seed, fault_index])
         return cls(rng.random(m), rng.random(m), rng.standard_normal((m, 4)), rng.standard_normal(m),
-                   rng.random(m), rng.random(m))
+                   rng.random(m), rng.random(m), rng.random(m))
 
 
 def inverse_gaussian(mean: np.ndarray, shape: np.ndarray, z: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -221,6 +225,9 @@ class FaultPrediction:
     k_last: float | None = None
     std_last: float | None = None
     fleet_prior: bool = False
+    outliers_h: list = field(default_factory=list)   # tests set aside (scatter.isolated_outliers) [h]
+    last_off_trend: bool = False                      # the last test is off the trend (unconfirmed) ...
+    without_last: "FaultPrediction | None" = None     # ... and the prediction without it
     reason: str | None = None
     series: Series | None = None          # since the onset anchor (n_points, fleet life)
     candidates: list | None = None        # Series of every onset candidate (all post-repair points)
@@ -267,6 +274,10 @@ def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None) 
         d["model_weights"] = {k: round(v, 3) for k, v in p.model_weights.items() if v > 0}
     d.update({"n_points": p.n_points, "onset_h": _num(p.onset_h), "k_last": _num(p.k_last, 4),
               "std_last": _num(p.std_last, 5), "fleet_prior": p.fleet_prior})
+    if p.outliers_h:
+        d["outliers_h"] = [_num(t, 3) for t in p.outliers_h]
+    if p.last_off_trend:
+        d["last_test_off_trend"] = True
     if p.onset_weights is not None and len(p.onset_weights) > 1:
         # where the wear began: the onset candidates and their posterior weights
         d["onset_posterior"] = {f"{t:g}": round(float(w), 3) for t, w in zip(p.candidate_onsets_h, p.onset_weights)}
@@ -307,14 +318,27 @@ def overall(preds: dict[str, FaultPrediction], n_tests: int) -> FaultPrediction:
 
 # ----------------------------------------------------------------------------- per-fault preparation
 def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold: float, n_tests: int,
-                  s: Settings) -> tuple[FaultPrediction, Series | None]:
-    """Degradation segment of one fault's post-repair tests, or the reason there is none."""
+                  s: Settings, check_last: bool = True) -> tuple[FaultPrediction, Series | None]:
+    """Degradation segment of one fault's post-repair tests, or the reason there is none.
+
+    Tests far off their neighbours are set aside (:func:`scatter.isolated_outliers`). A last
+    test off the trend cannot be told from wear that jumped until the next test: the prediction
+    without it is prepared too (``without_last``), and :func:`predict_series` mixes the two evenly.
+    """
     p = FaultPrediction(None, None, threshold=threshold, n_tests=n_tests)
     if n_tests:
         p.k_last, p.std_last = float(k[-1]), float(std[-1])
     if n_tests < s.prognosis.min_tests:
         p.reason = (f"only {n_tests} test(s) since the last repair (fewer than {s.prognosis.min_tests}): no RUL")
         return p, None
+    off, last = isolated_outliers(time_h, k, std, s.prognosis.outlier_sigma, s.prognosis.outlier_min_jump)
+    if last and check_last:
+        p.last_off_trend = True
+        p.without_last = prepare_fault(time_h[:-1], k[:-1], std[:-1], threshold, n_tests - 1, s, False)[0]
+    if off.any():
+        # a failed or disturbed diagnosis: set aside, named in the output
+        p.outliers_h = [float(t) for t in time_h[off]]
+        time_h, k, std = time_h[~off], k[~off], std[~off]
     anchor = degradation_segment(time_h, k, std, s.prognosis.onset_sigma, s.prognosis.onset_delta)
     if anchor is None:
         if k[-1] >= threshold:
@@ -352,6 +376,19 @@ def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_i
     come from the criteria of all its candidates at once (the same data), and every sample
     draws its onset, then its model within that onset, from them.
     """
+    alts = [(i, p.without_last) for i, p in enumerate(preds) if p.without_last is not None]
+    if alts:
+        predict_series([a for _, a in alts], np.array([thresholds[i] for i, _ in alts]), fault_index, s)
+    _predict_prepared(preds, thresholds, fault_index, s)
+    u_last = Draws.make(s.prognosis.seed, fault_index, s.prognosis.samples).u_last
+    for i, a in alts:
+        p = preds[i]
+        if p.samples is not None and a.samples is not None and len(p.samples) == len(a.samples) == len(u_last):
+            # an even mixture: with the last test (wear jumped) or without it (a failed diagnosis)
+            p.samples = np.where(u_last < 0.5, a.samples, p.samples)
+
+
+def _predict_prepared(preds: list[FaultPrediction], thresholds: np.ndarray, fault_index: int, s: Settings) -> None:
     idx = [i for i, p in enumerate(preds) if p.series is not None]
     if not idx:
         return
@@ -558,6 +595,9 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
         for t, ff, *_ in h.repairs:
             if ff in (f, "all"):
                 ax.axvline(t, color="C2", ls=":", lw=1)
+        if p.outliers_h:
+            out = np.isin(h.time_h, p.outliers_h)
+            ax.plot(h.time_h[out], h.k[out, fi], "x", ms=9, color="C3", label="set aside (off its neighbours)")
         if p.threshold is not None:
             ax.axhline(p.threshold, color="C3", lw=1, label=f"threshold {p.threshold:.3f}")
         q = p.quantiles()

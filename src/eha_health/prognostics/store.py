@@ -42,6 +42,7 @@ from ..physics.faults import FAULT_KEYS, FAULT_UPPER
 from ..signals.channels import MEASURED
 from ..signals.table import csv_rows
 from .config import PrognosticsError, Settings, load_settings
+from .scatter import noise_estimate
 
 SCHEMA_VERSION = 1
 MAINT_FAULTS = FAULT_KEYS + ("all",)
@@ -249,16 +250,6 @@ def read_history_csv(path: str | Path, settings: Settings | None = None) -> list
     out = [r for _, r in recs]
     _fill_missing_std(out, s.history.default_std)
     return out
-
-
-def noise_estimate(k: np.ndarray) -> float:
-    """1-sd of the scatter of a series about a smooth trend: 1.4826 MAD(second differences) / sqrt(6)
-    (a second difference of white noise has variance 6 s^2); NaN with fewer than 5 points."""
-    k = np.asarray(k, float)
-    if len(k) < 5:
-        return float("nan")
-    d2 = np.diff(k, 2)
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
 
 
 def _fill_missing_std(recs: list[HealthRecord], floor: float) -> None:

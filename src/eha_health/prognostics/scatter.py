@@ -1,0 +1,101 @@
+"""Scatter of one fault's history about its trend: the noise level, and tests far off it.
+
+Wear is monotone and persists; a diagnosis is noisy and can fail (a disturbed test, a fit in
+the wrong basin) and then lies far off its neighbours for one test only. Both estimates below
+are robust to such tests and blind to the trend:
+
+* :func:`noise_estimate`: 1.4826 MAD of the second differences / sqrt(6) (a second difference
+  of white noise of sd s has variance 6 s^2; a smooth trend's is nearly zero).
+* :func:`isolated_outliers`: the Hampel identifier (Hampel 1974; Pearson 2002, "Outliers in
+  process modeling and identification"): a test is off when |K_i - median(K_{i-2..i+2})|
+  (near the ends: also off a robust line through the 4 nearest other tests) exceeds ``sigma`` scatter sd (the larger of :func:`noise_estimate` and the test's stated
+  standard error) and ``min_jump``. A level shift -- wear that jumped and stays -- moves the
+  running median with it and is not flagged. The last test has no later neighbour to confirm
+  it: it is never called an outlier, only reported as off the trend when it lies ``sigma``
+  times further from the line through the tests before it than the earlier tests did from theirs.
+"""
+from __future__ import annotations
+
+import math
+import statistics
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+#: Tests needed before any is called an outlier: the scale needs >= 4 second differences
+#: of which one outlier spoils at most 3.
+MIN_TESTS = 8
+
+
+def noise_estimate(k: np.ndarray) -> float:
+    """1-sd of the scatter of a series about a smooth trend [units of k]: 1.4826 MAD(second
+    differences) / sqrt(6); NaN with fewer than 5 points."""
+    k = np.asarray(k, float)
+    if len(k) < 5:
+        return float("nan")
+    d2 = np.diff(k, 2)
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+
+
+def _theil_sen_at(t: np.ndarray, k: np.ndarray, t_at: np.ndarray) -> np.ndarray:
+    """K at ``t_at`` of the Theil-Sen lines (median of the pairwise slopes; Sen 1968) through
+    each row of ``t``, ``k`` [rows, points]."""
+    a, b = np.triu_indices(t.shape[1], 1)
+    slope = np.median((k[:, b] - k[:, a]) / (t[:, b] - t[:, a]), axis=1)
+    return np.median(k - slope[:, None] * t, axis=1) + slope * t_at
+
+
+def _distance(t: np.ndarray, k: np.ndarray, half_window: int) -> np.ndarray:
+    """How far each test lies from what its neighbours say it should read [K].
+
+    Inside: from the median of the 2 hw + 1 tests around it. Near the ends that window lags a
+    trend, and a line lags a kink (the onset): there the smaller distance from the median of the
+    (truncated) window and from the Theil-Sen line through the 2 hw nearest other tests, at its time.
+    """
+    n, hw, w = len(k), half_window, 2 * half_window
+    d = np.empty(n)
+    d[hw:n - hw] = np.abs(k[hw:n - hw] - np.median(sliding_window_view(k, w + 1), axis=1))
+    ends = np.r_[np.arange(hw), np.arange(n - hw, n)]
+    rows = []
+    for i in ends:
+        lo = min(max(i - hw, 0), n - w - 1)
+        rows.append([m for m in range(lo, lo + w + 1) if m != i])
+    j = np.array(rows)
+    line = np.abs(k[ends] - _theil_sen_at(t[j], k[j], t[ends]))
+    med = np.array([statistics.median(k[max(i - hw, 0):i + hw + 1].tolist()) for i in ends])
+    d[ends] = np.minimum(np.abs(k[ends] - med), line)
+    return d
+
+
+def isolated_outliers(t: np.ndarray, k: np.ndarray, std: np.ndarray, sigma: float, min_jump: float,
+                      half_window: int = 2) -> tuple[np.ndarray, bool]:
+    """(mask of the tests to set aside, whether the last test is off the trend).
+
+    ``t`` [h] strictly increasing, ``k``, ``std``: the fault's coefficients and their standard
+    errors; ``sigma`` (<= 0: no test is set aside) and ``min_jump`` [K] as in the module docstring.
+    The last test is judged by how far it lies from the line through the 2 hw tests before it,
+    against how far the earlier tests lay from theirs: wear that varies from test to test (a
+    gamma or Wiener process, an accelerating law) is not called off the trend.
+    """
+    t, k, std = np.asarray(t, float), np.asarray(k, float), np.asarray(std, float)
+    n = len(k)
+    off = np.zeros(n, bool)
+    if sigma <= 0 or n < MIN_TESTS:
+        return off, False
+    scale = np.maximum(noise_estimate(k), std)
+    # near the ends the distance is an extrapolation over a step, which wear that varies from
+    # test to test (a gamma or Wiener process) spreads: judged against the steps' own scatter
+    d1 = np.diff(k)
+    edge = np.r_[np.arange(half_window), np.arange(n - half_window, n)]
+    scale[edge] = np.maximum(scale[edge], 1.4826 * np.median(np.abs(d1 - np.median(d1))))
+    off = _distance(t, k, half_window) > np.maximum(sigma * scale, min_jump)
+    off[-1] = False
+    w = 2 * half_window
+    tc, kc = t[~off], k[~off]                 # the tests set aside judge nothing
+    if len(kc) < w + 3:
+        return off, False
+    # each test against the line through the w tests before it
+    ahead = kc[w:] - _theil_sen_at(sliding_window_view(tc[:-1], w), sliding_window_view(kc[:-1], w), tc[w:])
+    step_scale = 1.4826 * np.median(np.abs(ahead[:-1]))
+    last = bool(abs(ahead[-1]) > max(sigma * max(step_scale, scale[-1]), min_jump))
+    return off, last

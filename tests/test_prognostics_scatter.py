@@ -1,0 +1,97 @@
+"""Tests set aside as failed diagnoses, and the last test off the trend (prognostics.scatter)."""
+import csv
+
+import numpy as np
+import pytest
+
+from eha_health.prognostics.config import load_settings
+from eha_health.prognostics.rul import prognose
+from eha_health.prognostics.scatter import isolated_outliers, noise_estimate
+
+THR = {"gm": 0.8, "fsj": 0.9, "bkl": 0.85}
+S = load_settings().prognosis
+
+
+def flag(t, k, std=0.005):
+    return isolated_outliers(t, k, np.full(len(k), std), S.outlier_sigma, S.outlier_min_jump)
+
+
+def test_spikes_are_set_aside_and_wear_is_not():
+    rng = np.random.default_rng(1)
+    t = np.arange(20) * 50.0
+    k = 0.0004 * t + rng.normal(0, 0.005, 20)
+    off, last = flag(t, k)
+    assert not off.any() and not last                 # white noise about a line: nothing
+    spiked = k.copy()
+    spiked[[0, 7, 15]] += (0.15, -0.12, 0.25)         # failed diagnoses, one of them the first test
+    off, last = flag(t, spiked)
+    assert list(np.nonzero(off)[0]) == [0, 7, 15] and not last
+    assert noise_estimate(spiked) < 0.01              # the scale is robust to them
+    step = k + np.where(t >= 500, 0.15, 0.0)          # wear that jumped and stays
+    assert not flag(t, step)[0].any()
+    accel = 0.8 * np.expm1(3 * t / t[-1]) / np.expm1(3)   # an accelerating law, steep at the end
+    off, last = flag(t, accel + rng.normal(0, 0.002, 20), 0.002)
+    assert not off.any() and not last
+    # a gamma wear process with jumps of its own: nothing set aside on 40 seeded paths
+    for seed in range(40):
+        r = np.random.default_rng(seed)
+        g = np.cumsum(r.gamma(0.04 / 0.004, 0.004, 20))
+        off, last = flag(t, g + r.normal(0, 0.002, 20), 0.002)
+        assert not off.any(), seed
+
+
+def test_the_last_test_is_never_set_aside_only_reported():
+    t = np.arange(12) * 50.0
+    k = 0.0004 * t
+    k[-1] += 0.2
+    off, last = flag(t, k)
+    assert not off.any() and last
+    off, last = flag(t[:7], k[:7])                    # too few tests to judge: nothing
+    assert not off.any() and not last
+    assert not isolated_outliers(t, k, np.full(12, 0.005), 0.0, 0.02)[0].any()   # sigma 0: off
+
+
+def _write(path, t, k):
+    with open(path, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+        for ti, ki in zip(t, k):
+            w.writerow(["A", ti, ki, 0.0, 0.0, 0.005, 0.001, 0.001])
+
+
+def test_prognose_names_the_tests_set_aside_and_ignores_them(tmp_path):
+    rng = np.random.default_rng(4)
+    t = np.arange(16) * 50.0
+    k = np.clip(0.0008 * np.maximum(t - 100, 0) + rng.normal(0, 0.005, 16), 0, None)
+    clean, bad = tmp_path / "clean.csv", tmp_path / "bad.csv"
+    _write(clean, t, k)
+    kb = k.copy()
+    kb[9] += 0.25                                     # a failed diagnosis at 450 h
+    _write(bad, t, kb)
+    ref = prognose(clean, thresholds=THR)["actuators"]["A"]["faults"]["gm"]
+    got = prognose(bad, thresholds=THR)["actuators"]["A"]["faults"]["gm"]
+    assert got["outliers_h"] == [450.0] and "outliers_h" not in ref
+    assert got["rul_median_h"] == pytest.approx(ref["rul_median_h"], rel=0.05)
+    kept = prognose(bad, thresholds=THR, settings=load_settings(overrides={"prognosis": {"outlier_sigma": 0.0}}))
+    kept = kept["actuators"]["A"]["faults"]["gm"]
+    # kept, the spike moves the prediction by more than setting it aside leaves
+    assert abs(kept["rul_median_h"] / ref["rul_median_h"] - 1) > abs(got["rul_median_h"] / ref["rul_median_h"] - 1)
+
+
+def test_a_last_test_off_the_trend_gives_both_futures(tmp_path):
+    t = np.arange(16) * 50.0
+    rng = np.random.default_rng(6)
+    k = np.clip(0.0008 * np.maximum(t - 100, 0) + rng.normal(0, 0.005, 16), 0, None)
+    k[-1] += 0.2                                      # jumped wear, or a failed diagnosis
+    jump, before = tmp_path / "jump.csv", tmp_path / "before.csv"
+    _write(jump, t, k)
+    _write(before, t[:-1], k[:-1])
+    got = prognose(jump, thresholds=THR)["actuators"]["A"]["faults"]["gm"]
+    assert got["last_test_off_trend"] is True and "outliers_h" not in got
+    with_it = prognose(jump, thresholds=THR, settings=load_settings(overrides={"prognosis": {"outlier_sigma": 0.0}}))
+    with_it = with_it["actuators"]["A"]["faults"]["gm"]
+    without = prognose(before, thresholds=THR)["actuators"]["A"]["faults"]["gm"]
+    # the mixture spans the jumped future (short) and the one without the test (longer)
+    assert with_it["rul_median_h"] < without["rul_median_h"] - 50.0
+    assert got["rul_p05_h"] <= with_it["rul_median_h"] and got["rul_p95_h"] >= without["rul_median_h"] - 50.0
+    assert with_it["rul_median_h"] <= got["rul_median_h"] <= without["rul_median_h"] + 50.0

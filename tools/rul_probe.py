@@ -1,0 +1,37 @@
+"""Shared by the prognosis probes (prognose_laws.py, prognose_noise.py): run `prognose` on a
+synthetic K_FSJ history and print one line of how its RULs compare with the truth."""
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from eha_health.prognostics import prognose
+
+
+def draw_unit(rng: np.random.Generator, interval_h: float) -> tuple[float, float, np.ndarray]:
+    """(life L [h], onset [h], test times [h]) of one probe unit: L lognormal (median 1000 h, sd of
+    log 0.3), onset after a uniform 5-25 % of L, a test every ``interval_h`` up to a uniform 40-80 %
+    of L after the onset."""
+    life = 1000.0 * np.exp(rng.normal(0.0, 0.3))
+    onset = rng.uniform(0.05, 0.25) * life
+    return life, onset, np.arange(0.0, onset + rng.uniform(0.4, 0.8) * life, interval_h)
+
+
+def report(label: str, rows: list[dict], truth: dict[str, float], workdir: str | Path, settings=None) -> None:
+    """Write ``rows`` as a HISTORY.csv, prognose it and print: units given a RUL, coverage of the
+    5-95 % interval (no RUL = a miss), medians within +-20 % of ``truth`` [h], median/true quantiles."""
+    path = Path(workdir) / "history.csv"
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    out = prognose(path, settings=settings)["actuators"]
+    got = [(out[u]["faults"]["fsj"], r) for u, r in truth.items()]
+    given = [(F, r) for F, r in got if F["rul_median_h"] is not None]
+    inside = sum((F["rul_p05_h"] or 0.0) <= r <= (F["rul_p95_h"] if F["rul_p95_h"] is not None else np.inf)
+                 for F, r in given)
+    close = sum(abs(F["rul_median_h"] - r) <= 0.2 * r for F, r in given)
+    q = np.percentile([F["rul_median_h"] / r for F, r in given], [10, 50, 90]) if given else [np.nan] * 3
+    print(f"{label} RUL given {len(given):2d}/{len(got)}; 90 % interval covers {inside / len(got):4.0%}; "
+          f"median within 20 % {close / len(got):4.0%}; median/true 10/50/90 % {q[0]:.2f} / {q[1]:.2f} / {q[2]:.2f}",
+          flush=True)
