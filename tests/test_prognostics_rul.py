@@ -98,6 +98,25 @@ def test_few_tests_and_repair_restart_the_trend(tmp_path):
     assert prognose(tmp_path / "before.sqlite", thresholds=THR)["actuators"]["R"]["faults"]["gm"]["rul_median_h"] > 0
 
 
+def test_a_rise_that_shows_at_one_test_gets_a_rul_from_the_onset_candidates(tmp_path):
+    # flat for 8 tests, then one test clearly above the noise: the onset anchor is the test before it
+    t = 50.0 * np.arange(9)
+    k = np.r_[np.full(8, 0.01), 0.06]
+    h = tmp_path / "h.csv"
+    with open(h, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+        w.writerows(["A", ti, ki, 0.0, 0.0, 0.003, 0.001, 0.001] for ti, ki in zip(t, k))
+    gm = prognose(h, thresholds=THR)["actuators"]["A"]["faults"]["gm"]
+    assert gm["n_points"] == 2 and gm["onset_posterior"]        # every post-repair point is fitted
+    assert gm["rul_median_h"] > 0 and gm["rul_p05_h"] < gm["rul_median_h"]
+    assert gm["rul_p95_h"] is None and "beyond the prediction horizon" in gm["reason"]   # one test of rise: wide
+    assert gm["last_test_off_trend"]                  # and it may be a failed diagnosis: said
+    one = load_settings(overrides={"prognosis": {"onset_candidates": 1}})
+    gm1 = prognose(h, thresholds=THR, settings=one)["actuators"]["A"]["faults"]["gm"]
+    assert gm1["rul_median_h"] is None and "only 2 points since then" in gm1["reason"]
+
+
 def test_fleet_prior_for_an_actuator_with_few_points(tmp_path):
     h = tmp_path / "h.csv"
     rows = write_history(h, n_act=6, n_tests=14, seed=4)

@@ -221,6 +221,8 @@ def _validate(s: Settings) -> None:
         raise PrognosticsError("prognosis: need 0 < warn_p_fail <= error_p_fail <= 1")
     if p.onset_candidates < 1:
         raise PrognosticsError(f"prognosis.onset_candidates must be >= 1, got {p.onset_candidates}")
+    if not (p.outlier_sigma >= 0 and p.outlier_min_jump >= 0):
+        raise PrognosticsError("prognosis: outlier_sigma and outlier_min_jump must be >= 0 (outlier_sigma 0: none set aside)")
     if p.next_check_h <= 0 or p.samples < 100:
         raise PrognosticsError("prognosis: next_check_h must be > 0 h and samples >= 100")
     known = {"linear", "exponential", "power", "wiener"}

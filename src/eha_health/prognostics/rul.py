@@ -349,8 +349,10 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
                     f"(threshold {threshold:.3f}), no trend to extrapolate")
         return p, None
     p.onset_h = float(time_h[anchor])
-    p.n_points = n_tests - anchor
-    if p.n_points < 3:
+    p.n_points = len(k) - anchor
+    if p.n_points < 3 and not (anchor > 0 and s.prognosis.onset_candidates > 1):
+        # the models' evidence is proper from 3 points; onset candidates fit every post-repair
+        # point (>= min_tests), so there a rise that shows at one test is enough
         p.reason = (f"degradation onset after {time_h[anchor]:g} h: only {p.n_points} points since then "
                     f"(fewer than 3): no RUL")
         return p, None
