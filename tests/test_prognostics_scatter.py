@@ -6,7 +6,8 @@ import pytest
 
 from eha_health.prognostics.config import load_settings
 from eha_health.prognostics.rul import prognose
-from eha_health.prognostics.scatter import isolated_outliers, noise_estimate
+from eha_health.prognostics.store import HistoryStore
+from eha_health.prognostics.scatter import isolated_outliers, last_persistent_fall, noise_estimate
 
 THR = {"gm": 0.8, "fsj": 0.9, "bkl": 0.85}
 S = load_settings().prognosis
@@ -95,3 +96,47 @@ def test_a_last_test_off_the_trend_gives_both_futures(tmp_path):
     assert with_it["rul_median_h"] < without["rul_median_h"] - 50.0
     assert got["rul_p05_h"] <= with_it["rul_median_h"] and got["rul_p95_h"] >= without["rul_median_h"] - 50.0
     assert with_it["rul_median_h"] <= got["rul_median_h"] <= without["rul_median_h"] + 50.0
+
+
+def _repaired(seed=0):
+    """K rising 0.001 /h, repaired at 600 h (not recorded), rising again; tests every 50 h."""
+    t = np.arange(24) * 50.0
+    k = np.where(t >= 600, 0.001 * (t - 600) + 0.02, 0.001 * t)
+    return t, np.clip(k + np.random.default_rng(seed).normal(0, 0.005, 24), 0, None)
+
+
+def test_a_fall_that_persists_is_a_repair_and_failed_diagnoses_are_not():
+    t, k = _repaired()
+    std = np.full(24, 0.005)
+    fall = lambda y: last_persistent_fall(y, std, S.outlier_sigma, S.repair_fall)   # noqa: E731
+    assert fall(k) == 12
+    low = k.copy()
+    low[5] -= 0.3                                     # one failed diagnosis before: the same
+    assert fall(low) == 12
+    up = k.copy()
+    up[12] += 0.5                                     # the first test after the repair failed
+    assert fall(up) == 13
+    rising = 0.001 * t + np.random.default_rng(1).normal(0, 0.005, 24)
+    assert fall(rising) is None
+    burst = rising.copy()
+    burst[8:11] += 0.25                               # three failed diagnoses in a row, then back
+    assert fall(burst) is None
+    assert fall(np.r_[rising[:22], 0.01, 0.02]) == 22  # two tests down confirm it ...
+    assert fall(np.r_[rising[:23], 0.01]) is None      # ... one does not
+
+
+def test_prognose_restarts_the_trend_at_an_unrecorded_repair(tmp_path):
+    t, k = _repaired()
+    h = tmp_path / "h.csv"
+    _write(h, t, k)
+    gm = prognose(h, thresholds=THR)["actuators"]["A"]["faults"]["gm"]
+    assert gm["unrecorded_repair_h"] == 600.0 and gm["n_tests"] == 12
+    true_rul = 600.0 + (THR["gm"] - 0.02) / 0.001 - t[-1]
+    assert gm["rul_p05_h"] <= true_rul <= gm["rul_p95_h"]
+    assert gm["rul_median_h"] == pytest.approx(true_rul, rel=0.1)
+    # with the repair recorded in the history, the same prediction
+    with HistoryStore(tmp_path / "h.sqlite") as st:
+        st.import_csv(h)
+        st.record_repair("A", "gm", 575.0)
+    rec = prognose(tmp_path / "h.sqlite", thresholds=THR)["actuators"]["A"]["faults"]["gm"]
+    assert "unrecorded_repair_h" not in rec and rec["rul_median_h"] == gm["rul_median_h"]

@@ -66,6 +66,7 @@ class PrognosisSettings:
     onset_candidates: int = _f("-", "onset times weighed by the evidence, from the first post-repair test to the anchor")
     outlier_sigma: float = _f("-", "a test this many scatter sd off its neighbours' median is set aside (0: never)")
     outlier_min_jump: float = _f("-", "smallest K distance from the neighbours' median for a test to be set aside")
+    repair_fall: float = _f("-", "a fall of K that persists by at least this (and outlier_sigma sd) is an unrecorded repair")
     samples: int = _f("-", "Monte Carlo samples per RUL distribution")
     horizon_factor: float = _f("-", "RUL horizon in data spans")
     seed: int = _f("-", "seed of the Monte Carlo sampling")
@@ -221,8 +222,9 @@ def _validate(s: Settings) -> None:
         raise PrognosticsError("prognosis: need 0 < warn_p_fail <= error_p_fail <= 1")
     if p.onset_candidates < 1:
         raise PrognosticsError(f"prognosis.onset_candidates must be >= 1, got {p.onset_candidates}")
-    if not (p.outlier_sigma >= 0 and p.outlier_min_jump >= 0):
-        raise PrognosticsError("prognosis: outlier_sigma and outlier_min_jump must be >= 0 (outlier_sigma 0: none set aside)")
+    if not (p.outlier_sigma >= 0 and p.outlier_min_jump >= 0 and p.repair_fall >= 0):
+        raise PrognosticsError("prognosis: outlier_sigma, outlier_min_jump and repair_fall must be >= 0 "
+                               "(outlier_sigma 0: none set aside, no unrecorded repair)")
     if p.next_check_h <= 0 or p.samples < 100:
         raise PrognosticsError("prognosis: next_check_h must be > 0 h and samples >= 100")
     known = {"linear", "exponential", "power", "wiener"}

@@ -1,6 +1,7 @@
 """Remaining useful life as a distribution, per fault and overall (CLI: ``eha-health prognose``).
 
-For each fault of each actuator, the tests since the fault's last repair, less those far off
+For each fault of each actuator, the tests since the fault's last repair (recorded, or a fall of K
+that persists), less those far off
 their neighbours (failed diagnoses, :mod:`scatter`; a last test off the trend gives an even
 mixture of the predictions with and without it); its onset anchor
 (:func:`degradation.degradation_segment`) and ``prognosis.onset_candidates`` onset times from the
@@ -44,7 +45,7 @@ import numpy as np
 from .config import PrognosticsError, Settings, load_settings
 from .degradation import (ModelFit, Series, akaike_weights, degradation_segment, fit_models,
                           shape_g, shape_g_inv)
-from .scatter import isolated_outliers
+from .scatter import isolated_outliers, last_persistent_fall
 from .thresholds import FAULTS, threshold_values
 
 CHUNK = 256   # series per sampling chunk (memory ~ CHUNK x samples x 30 floats)
@@ -225,6 +226,7 @@ class FaultPrediction:
     k_last: float | None = None
     std_last: float | None = None
     fleet_prior: bool = False
+    unrecorded_repair_h: float | None = None          # K fell and stayed down here: the trend restarts [h]
     outliers_h: list = field(default_factory=list)   # tests set aside (scatter.isolated_outliers) [h]
     last_off_trend: bool = False                      # the last test is off the trend (unconfirmed) ...
     without_last: "FaultPrediction | None" = None     # ... and the prediction without it
@@ -274,6 +276,8 @@ def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None) 
         d["model_weights"] = {k: round(v, 3) for k, v in p.model_weights.items() if v > 0}
     d.update({"n_points": p.n_points, "onset_h": _num(p.onset_h), "k_last": _num(p.k_last, 4),
               "std_last": _num(p.std_last, 5), "fleet_prior": p.fleet_prior})
+    if p.unrecorded_repair_h is not None:
+        d["unrecorded_repair_h"] = _num(p.unrecorded_repair_h, 3)
     if p.outliers_h:
         d["outliers_h"] = [_num(t, 3) for t in p.outliers_h]
     if p.last_off_trend:
@@ -321,13 +325,20 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
                   s: Settings, check_last: bool = True) -> tuple[FaultPrediction, Series | None]:
     """Degradation segment of one fault's post-repair tests, or the reason there is none.
 
-    Tests far off their neighbours are set aside (:func:`scatter.isolated_outliers`). A last
-    test off the trend cannot be told from wear that jumped until the next test: the prediction
-    without it is prepared too (``without_last``), and :func:`predict_series` mixes the two evenly.
+    A fall of K that persists is a repair the history does not hold: the trend restarts there
+    (:func:`scatter.last_persistent_fall`, ``unrecorded_repair_h``). Tests far off their
+    neighbours are set aside (:func:`scatter.isolated_outliers`). A last test off the trend cannot
+    be told from wear that jumped until the next test: the prediction without it is prepared too
+    (``without_last``), and :func:`predict_series` mixes the two evenly.
     """
     p = FaultPrediction(None, None, threshold=threshold, n_tests=n_tests)
     if n_tests:
         p.k_last, p.std_last = float(k[-1]), float(std[-1])
+    fall = last_persistent_fall(k, std, s.prognosis.outlier_sigma, s.prognosis.repair_fall)
+    if fall is not None:
+        p.unrecorded_repair_h = float(time_h[fall])
+        time_h, k, std = time_h[fall:], k[fall:], std[fall:]
+        n_tests = p.n_tests = len(k)
     if n_tests < s.prognosis.min_tests:
         p.reason = (f"only {n_tests} test(s) since the last repair (fewer than {s.prognosis.min_tests}): no RUL")
         return p, None

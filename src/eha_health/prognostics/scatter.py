@@ -99,3 +99,41 @@ def isolated_outliers(t: np.ndarray, k: np.ndarray, std: np.ndarray, sigma: floa
     step_scale = 1.4826 * np.median(np.abs(ahead[:-1]))
     last = bool(abs(ahead[-1]) > max(sigma * max(step_scale, scale[-1]), min_jump))
     return off, last
+
+
+def last_persistent_fall(k: np.ndarray, std: np.ndarray, sigma: float, min_fall: float,
+                         window: int = 3) -> int | None:
+    """Index of the first test after the latest fall of K that persists, or None.
+
+    Wear does not heal: when test i and the median of the (up to) ``window`` tests from i on lie
+    below the median of the ``window`` tests before i, and below that of the ``window`` tests
+    before those, by more than ``sigma`` scatter sd and ``min_fall`` [K], with at least 2 tests
+    from i on, the actuator was repaired or replaced at i (a repair the history does not hold).
+    One failed diagnosis moves no median; a burst of them that ends falls back to the level
+    before it, not below.
+    """
+    k, std = np.asarray(k, float), np.asarray(std, float)
+    n = len(k)
+    if sigma <= 0 or n < window + 2:
+        return None
+    need = max(sigma * max(noise_estimate(k) if n >= 5 else 0.0, float(np.median(std))), min_fall)
+    full = np.median(sliding_window_view(k, window), axis=1)          # median of k[j:j + window]
+
+    def med(lo: int, hi: int) -> float:                                 # median of k[lo:hi], lo >= 0
+        return float(full[lo]) if hi - lo == window else (float(np.median(k[lo:hi])) if hi > lo else np.nan)
+    hits = []
+    for i in range(window, n - 1):
+        before, after = full[i - window], med(i, min(i + window, n))
+        earlier = med(max(i - 2 * window, 0), i - window)
+        # below the tests before the fall, and below those before them: a burst of failed
+        # diagnoses that ends falls back to the earlier level only
+        if (before - after > need and before - k[i] > need
+                and (np.isnan(earlier) or earlier - after > need)):
+            hits.append(i)
+    if not hits:
+        return None
+    # the latest fall: of its run of hits, the test after the largest single drop
+    run = [hits[-1]]
+    while len(run) < len(hits) and hits[-len(run) - 1] == run[0] - 1:
+        run.insert(0, hits[-len(run) - 1])
+    return max(run, key=lambda i: k[i - 1] - k[i])
