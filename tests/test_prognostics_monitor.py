@@ -133,3 +133,22 @@ def test_monitor_node_appends_and_publishes_the_rul(tmp_path):
     assert row["wall_time_utc"] and row["method"] == "deterministic"
     # the monitor's log says where the test went: history add of the log finds the same time
     assert history_times(log, res["test_id"])["time_h"] == last + 180.0
+
+
+def test_status_says_what_the_history_checks_did(tmp_path):
+    from eha_health.monitoring.prognosis import Outcome
+    from eha_health.prognostics.rul import prognose
+    t = np.arange(24) * 50.0
+    gm = np.where(t >= 600, 0.001 * (t - 600) + 0.02, 0.001 * t)     # repaired at 600 h, not recorded
+    bkl = 0.0004 * t
+    bkl[10] += 0.2                                                     # a failed diagnosis
+    p = tmp_path / "h.csv"
+    with open(p, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+        w.writerows(["A", ti, g, 0.0, b, 0.005, 0.001, 0.005] for ti, g, b in zip(t, gm, bkl))
+    prog = prognose(p, thresholds={"gm": 0.8, "fsj": 0.9, "bkl": 0.85})["actuators"]["A"]
+    vals = rul_values(Outcome(True, prog, time_h=float(t[-1])))
+    assert vals["unrecorded_repair_h_gm"] == 600.0 and vals["outliers_h_bkl"] == "500"
+    assert not any(k.endswith("_fsj") and k.startswith(("unrecorded", "outliers", "last_test")) for k in vals)
+    assert "last_test_off_trend_gm" not in vals

@@ -12,7 +12,8 @@ what went wrong and the RUL is that of the stored history.
 
 :func:`rul_values` turns the outcome into the ``/diagnostics`` key values (docs/interfaces.md):
 ``rul_median_h``, ``rul_p05_h``, ``rul_p95_h``, ``p_fail_next`` overall and with a ``_gm`` /
-``_fsj`` / ``_bkl`` suffix per fault, ``dominant_fault``; :meth:`PrognosisStep.level` the level
+``_fsj`` / ``_bkl`` suffix per fault, ``dominant_fault``, and per fault where the history's checks
+acted ``unrecorded_repair_h_<f>``, ``outliers_h_<f>``, ``last_test_off_trend_<f>``; :meth:`PrognosisStep.level` the level
 that P(failure before the next check) calls for.
 """
 from __future__ import annotations
@@ -140,4 +141,11 @@ def rul_values(outcome: Outcome | None) -> dict:
         F = prog["faults"][f]
         for k in RUL_FIELDS:
             out[f"{k}_{f}"] = "none" if F.get(k) is None else float(F[k])
+        # what the history's own checks did (prognostics.scatter), only where they did something
+        if F.get("unrecorded_repair_h") is not None:
+            out[f"unrecorded_repair_h_{f}"] = float(F["unrecorded_repair_h"])
+        if F.get("outliers_h"):
+            out[f"outliers_h_{f}"] = ", ".join(f"{t:g}" for t in F["outliers_h"])
+        if F.get("last_test_off_trend"):
+            out[f"last_test_off_trend_{f}"] = True
     return out
