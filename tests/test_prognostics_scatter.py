@@ -140,3 +140,18 @@ def test_prognose_restarts_the_trend_at_an_unrecorded_repair(tmp_path):
         st.record_repair("A", "gm", 575.0)
     rec = prognose(tmp_path / "h.sqlite", thresholds=THR)["actuators"]["A"]["faults"]["gm"]
     assert "unrecorded_repair_h" not in rec and rec["rul_median_h"] == gm["rul_median_h"]
+
+
+def test_plot_marks_the_repair_and_the_tests_set_aside(tmp_path):
+    from eha_health.prognostics.rul import plot_prognosis
+    t, k = _repaired()
+    bkl = 0.0004 * t
+    bkl[10] += 0.2
+    h = tmp_path / "h.csv"
+    with open(h, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+        w.writerows(["A", ti, g, 0.0, b, 0.005, 0.001, 0.005] for ti, g, b in zip(t, k, bkl))
+    # one onset candidate of this history has weight 1 + 2e-16: its shade (alpha) above 1 broke the plot
+    plot_prognosis(h, tmp_path / "p.png", "A")
+    assert (tmp_path / "p.png").stat().st_size > 10_000

@@ -608,6 +608,8 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
         for t, ff, *_ in h.repairs:
             if ff in (f, "all"):
                 ax.axvline(t, color="C2", ls=":", lw=1)
+        if p.unrecorded_repair_h is not None:
+            ax.axvline(p.unrecorded_repair_h, color="C2", ls="--", lw=1, label="unrecorded repair (K fell for good)")
         if p.outliers_h:
             out = np.isin(h.time_h, p.outliers_h)
             ax.plot(h.time_h[out], h.k[out, fi], "x", ms=9, color="C3", label="set aside (off its neighbours)")
@@ -624,7 +626,7 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
             ax.fill_between(t0 + tau, lo, hi, color="C0", alpha=0.2, label="90 % band")
             if p.onset_weights is not None and len(p.onset_weights) > 1:   # where the wear began
                 for i, (tc, wc) in enumerate(zip(p.candidate_onsets_h, p.onset_weights)):
-                    ax.axvline(tc, color="C4", lw=2, alpha=0.15 + 0.85 * float(wc),
+                    ax.axvline(tc, color="C4", lw=2, alpha=min(1.0, 0.15 + 0.85 * float(wc)),   # wc may round above 1
                                label="onset (shade: posterior weight)" if i == 0 else None)
             fin = p.samples[np.isfinite(p.samples)]
             if len(fin):
