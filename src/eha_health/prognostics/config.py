@@ -64,7 +64,7 @@ class PrognosisSettings:
     onset_sigma: float = _f("-", "onset: rise over the first post-repair K in standard errors")
     onset_delta: float = _f("-", "onset: smallest rise of K")
     onset_candidates: int = _f("-", "onset times weighed by the evidence, from the first post-repair test to the anchor")
-    outlier_sigma: float = _f("-", "a test this many scatter sd off its neighbours' median is set aside (0: never)")
+    outlier_sigma: float = _f("-", "a test this many scatter sd off its neighbours' median is set aside (0: never, and no unrecorded repair)")
     outlier_min_jump: float = _f("-", "smallest K distance from the neighbours' median for a test to be set aside")
     repair_fall: float = _f("-", "a fall of K that persists by at least this (and outlier_sigma sd) is an unrecorded repair")
     samples: int = _f("-", "Monte Carlo samples per RUL distribution")

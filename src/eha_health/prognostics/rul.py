@@ -1,9 +1,8 @@
 """Remaining useful life as a distribution, per fault and overall (CLI: ``eha-health prognose``).
 
-For each fault of each actuator, the tests since the fault's last repair (recorded, or a fall of K
-that persists), less those far off
-their neighbours (failed diagnoses, :mod:`scatter`; a last test off the trend gives an even
-mixture of the predictions with and without it); its onset anchor
+For each fault of each actuator, the tests since the fault's last repair (recorded, or a fall
+of K that persists), less those far off their neighbours (failed diagnoses, :mod:`scatter`; a
+last test off the trend gives an even mixture of the predictions with and without it); its onset anchor
 (:func:`degradation.degradation_segment`) and ``prognosis.onset_candidates`` onset times from the
 first post-repair test to it, each with the models of :mod:`degradation` fitted to every
 post-repair point; weights over (onset, model) from their criteria; then S Monte Carlo samples

@@ -1,18 +1,21 @@
-"""Scatter of one fault's history about its trend: the noise level, and tests far off it.
+"""Scatter of one fault's history about its trend: the noise level, tests far off it, falls.
 
 Wear is monotone and persists; a diagnosis is noisy and can fail (a disturbed test, a fit in
-the wrong basin) and then lies far off its neighbours for one test only. Both estimates below
-are robust to such tests and blind to the trend:
+the wrong basin) and then lies far off its neighbours for one test only; a repair nobody
+recorded makes K fall and stay down. The estimates below are robust to failed tests and blind
+to the trend:
 
 * :func:`noise_estimate`: 1.4826 MAD of the second differences / sqrt(6) (a second difference
   of white noise of sd s has variance 6 s^2; a smooth trend's is nearly zero).
 * :func:`isolated_outliers`: the Hampel identifier (Hampel 1974; Pearson 2002, "Outliers in
-  process modeling and identification"): a test is off when |K_i - median(K_{i-2..i+2})|
-  (near the ends: also off a robust line through the 4 nearest other tests) exceeds ``sigma`` scatter sd (the larger of :func:`noise_estimate` and the test's stated
-  standard error) and ``min_jump``. A level shift -- wear that jumped and stays -- moves the
-  running median with it and is not flagged. The last test has no later neighbour to confirm
-  it: it is never called an outlier, only reported as off the trend when it lies ``sigma``
-  times further from the line through the tests before it than the earlier tests did from theirs.
+  process modeling and identification"): a test is off when |K_i - median(K_{i-2..i+2})| (near
+  the ends: also its distance from a robust line through the 4 nearest other tests) exceeds
+  ``sigma`` scatter sd (the larger of :func:`noise_estimate` and the test's stated standard
+  error) and ``min_jump``. A level shift -- wear that jumped and stays -- moves the running
+  median with it and is not flagged. The last test has no later neighbour to confirm it: it is
+  never called an outlier, only reported as off the trend when it lies ``sigma`` times further
+  from the line through the tests before it than the earlier tests did from theirs.
+* :func:`last_persistent_fall`: where K fell and stayed down (medians of 3 tests on each side).
 """
 from __future__ import annotations
 
