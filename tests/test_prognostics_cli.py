@@ -187,3 +187,17 @@ def test_bench_rul_time_prognose(capsys):
     assert code == 0 and obj["actuators"] == 6 and obj["series"] == 18 and obj["wall_time_s"] > 0
     code, _, err = run(capsys, ["bench", "rul", "--units", "1"])
     assert code == 2 and "--units" in err
+
+
+def test_prognose_table_says_what_the_history_checks_did(tmp_path, capsys):
+    t = np.arange(24) * 50.0
+    gm = np.where(t >= 600, 0.001 * (t - 600) + 0.02, 0.001 * t)     # repaired at 600 h, not recorded
+    bkl = 0.0004 * t
+    bkl[10] += 0.2                                                     # a failed diagnosis
+    bkl[-1] += 0.2                                                     # and the latest test off the trend
+    h = write_csv(tmp_path / "h.csv", [["A", ti, g, 0.0, b, 0.005, 0.001, 0.005] for ti, g, b in zip(t, gm, bkl)])
+    code, out, err = run(capsys, ["prognose", "--history", str(h)])
+    assert code == 0, err
+    assert "K fell at 600 h and stayed down" in out and "history repair" in out
+    assert "set aside as failed diagnoses (far off their neighbours): tests at 500 h" in out
+    assert "the last test is off the trend" in out

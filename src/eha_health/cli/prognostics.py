@@ -142,6 +142,15 @@ def format_prognosis(obj: dict, next_check_h: float) -> str:
             lines.append(f"  {name:8s} {model:18s} {rul:>28s} {pf:>16s} {thr:>9s} {f['n_tests']:5d}")
             if name == "overall" and f.get("dominant_fault"):
                 lines.append(f"  {'':8s} dominant fault: {f['dominant_fault']}")
+            if f.get("unrecorded_repair_h") is not None:
+                lines.append(f"  {'':8s} K fell at {f['unrecorded_repair_h']:g} h and stayed down: an unrecorded repair, "
+                             "the trend restarts there (record it: history repair)")
+            if f.get("outliers_h"):
+                lines.append(f"  {'':8s} set aside as failed diagnoses (far off their neighbours): tests at "
+                             + ", ".join(f"{t:g}" for t in f["outliers_h"]) + " h")
+            if f.get("last_test_off_trend"):
+                lines.append(f"  {'':8s} the last test is off the trend: the RUL mixes the futures with and without it "
+                             "(the next test will tell)")
             if f.get("reason"):
                 lines.append(f"  {'':8s} {f['reason']}")
     return "\n".join(lines)
