@@ -256,3 +256,19 @@ def test_onset_weighed_by_the_evidence(tmp_path):
     one = load_settings(overrides={"prognosis": {"onset_candidates": 1}})
     f = prognose(h, thresholds=THR, settings=one)["actuators"]["A"]["faults"]["gm"]
     assert not f["rul_p05_h"] <= 250.0 <= f["rul_p95_h"]         # the anchor alone (seed 2)
+
+
+def test_a_fault_already_beyond_its_threshold_beside_a_degrading_one(tmp_path):
+    # K_FSJ came in at 1.0, above its threshold, and stays there; K_GM degrades. prognose raised
+    # ValueError (the RUL-0 fault had 1 sample, the other 2000) until 2026-11-28
+    t = 50.0 * np.arange(12)
+    h = tmp_path / "h.csv"
+    with open(h, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+        w.writerows(["A", ti, 0.0008 * ti, 1.0, 0.0, 0.003, 0.003, 0.001] for ti in t)
+    a = prognose(h, thresholds=THR)["actuators"]["A"]
+    assert a["faults"]["fsj"]["rul_median_h"] == 0.0 and "at or beyond the threshold" in a["faults"]["fsj"]["reason"]
+    assert a["faults"]["gm"]["rul_median_h"] > 0
+    assert a["overall"]["rul_median_h"] == 0.0 and a["overall"]["dominant_fault"] == "fsj"
+    assert a["overall"]["p_fail_next"] == 1.0
