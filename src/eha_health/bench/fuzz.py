@@ -6,7 +6,8 @@ Each target generates inputs nobody wrote on purpose and feeds them to the real 
   with a length field overwritten by an absurd value; plus logs with wrong schemas.
 * ``importer``: channel maps (columns, units, scales, keys) and the delimited text they read.
 * ``csv``: the Response CSV format, damaged (cut, characters replaced, headers shuffled).
-* ``history``: HISTORY.csv rows (values, columns, order) read and imported into a real SQLite
+* ``history``: HISTORY.csv rows (values, columns, order; and trends as diagnoses make them, with
+  noise, failed diagnoses and unrecorded repairs) read and imported into a real SQLite
   store, and what was taken in prognosed (ordered RUL quantiles, p_fail_next in [0, 1], or a
   reason); a damaged store file opened.
 * ``messages``: node inputs (NaN / inf, wrong array sizes, stamps out of order, bad marks)
@@ -298,9 +299,33 @@ class HistoryTarget:
         valid = st.lists(st.tuples(st.sampled_from(["A1", "B2"]), st.floats(0, 1e4), st.floats(0, 1.5),
                                    st.floats(0, 1.5), st.floats(0, 1.5)), max_size=20)
         flips = st.lists(st.tuples(st.integers(0, len(self.db_bytes) - 1), st.integers(0, 7)), min_size=1, max_size=6)
+        # histories as diagnoses make them: per fault a level, a rise of some shape, noise, failed
+        # diagnoses and a repair nobody recorded (random K rows almost never hold a trend)
+        fault = st.tuples(st.floats(0, 1.5), st.floats(-0.5, 1.5), st.sampled_from([0.5, 1.0, 2.0, 3.0]),
+                          st.sampled_from([0.0, 0.001, 0.01, 0.05]), st.floats(0, 0.3),
+                          st.one_of(st.none(), st.floats(0.2, 0.9)))
+        trend = st.tuples(st.integers(3, 40), st.integers(0, 2 ** 32 - 1), st.tuples(fault, fault, fault))
         return st.one_of(st.tuples(st.just("csv"), st.tuples(header, rows)),
                          st.tuples(st.just("valid"), valid),
+                         st.tuples(st.just("trend"), trend),
                          st.tuples(st.just("db"), flips))
+
+    @staticmethod
+    def trend_rows(n: int, seed: int, faults) -> list[tuple]:
+        """One actuator's HISTORY.csv rows from (level, rise, exponent, noise sd, share of failed
+        diagnoses, unrecorded repair at this fraction or None) per fault."""
+        rng = np.random.default_rng(seed)
+        t = np.cumsum(rng.uniform(1.0, 100.0, n))
+        x = (t - t[0]) / max(t[-1] - t[0], 1e-9)
+        cols = []
+        for level, rise, p, sd, bad, repair in faults:
+            k = level + rise * x ** p + rng.normal(0.0, sd + 1e-12, n)
+            failed = rng.random(n) < bad
+            k[failed] += rng.uniform(-0.5, 0.5, failed.sum())
+            if repair is not None:
+                k[x >= repair] -= level + rise * repair ** p
+            cols.append(np.clip(k, 0.0, 1.5))
+        return [("A1", float(t[i]), *(float(c[i]) for c in cols)) for i in range(n)]
 
     def check(self, case, tally: Tally) -> None:
         import csv
@@ -335,7 +360,7 @@ class HistoryTarget:
                 w.writerows(rows)
             else:
                 w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl"])
-                w.writerows(arg)
+                w.writerows(self.trend_rows(*arg) if kind == "trend" else arg)
         db.write_bytes(self.db_bytes)
         with HistoryStore(db) as s:
             before = s.list_tests()
