@@ -272,3 +272,34 @@ def test_a_fault_already_beyond_its_threshold_beside_a_degrading_one(tmp_path):
     assert a["faults"]["gm"]["rul_median_h"] > 0
     assert a["overall"]["rul_median_h"] == 0.0 and a["overall"]["dominant_fault"] == "fsj"
     assert a["overall"]["p_fail_next"] == 1.0
+
+
+@pytest.mark.parametrize("scale", [1e-3, 1e3])
+def test_nothing_fixes_a_time_scale(tmp_path, scale):
+    """A rig whose life is an hour and an aircraft whose life is a thousand hours are the same
+    problem in other units: every time and RUL scales, every probability stays (the RULs were
+    rounded to 0.1 h before, so an accelerated test's 0.35 h read 0.3 or 0.4)."""
+    rows = write_history(tmp_path / "base.csv", n_act=4)
+    with open(tmp_path / "scaled.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, rows[0].keys())
+        w.writeheader()
+        w.writerows({**r, "time_h": r["time_h"] * scale} for r in rows)
+    base = prognose(tmp_path / "base.csv", thresholds=THR, next_check_h=100.0)["actuators"]
+    scaled = prognose(tmp_path / "scaled.csv", thresholds=THR, next_check_h=100.0 * scale)["actuators"]
+    compared = 0
+    for a, obj in base.items():
+        for f in ("gm", "fsj", "bkl", "overall"):
+            b = obj["faults"][f] if f != "overall" else obj["overall"]
+            s = scaled[a]["faults"][f] if f != "overall" else scaled[a]["overall"]
+            assert (b["rul_median_h"] is None) == (s["rul_median_h"] is None)
+            assert s["p_fail_next"] == b["p_fail_next"] and s.get("n_points") == b.get("n_points")
+            for k in ("rul_p05_h", "rul_median_h", "rul_p95_h", "onset_h"):
+                if b.get(k) is not None:
+                    assert s[k] / scale == pytest.approx(b[k], rel=1e-3), (a, f, k)
+                    compared += 1
+    assert compared >= 4 * 7              # gm (with its onset) and overall of every actuator, at least
+
+
+def test_table_hours_keep_their_precision_at_any_scale():
+    from eha_health.prognostics.rul import format_hours
+    assert [format_hours(v) for v in (None, 0.03456, 3.456, 99.95, 1234.5)] == ["-", "0.0346", "3.46", "100", "1234"]

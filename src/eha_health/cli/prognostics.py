@@ -93,10 +93,10 @@ def cmd_history_list(args) -> int:
     for t in rows:
         ks = " ".join(f"{t['k_' + n]:7.4f}+-{t['std_' + n]:.4f}" for n in FAULT_KEYS)
         use = "" if t["usage"] is None else f"{t['usage']:g}"
-        print(f"{t['actuator_id']:12s} {t['time_h']:9.2f} {ks} {use:>8s}  {t['method'] or '':14s} "
+        print(f"{t['actuator_id']:12s} {t['time_h']:9.6g} {ks} {use:>8s}  {t['method'] or '':14s} "
               f"{Path(t['source_path']).name if t['source_path'] else ''}")
     for m in maint:
-        print(f"{m['actuator_id']:12s} {m['time_h']:9.2f} {m['action']} {m['fault']}" +
+        print(f"{m['actuator_id']:12s} {m['time_h']:9.6g} {m['action']} {m['fault']}" +
               (f" ({m['note']})" if m["note"] else ""))
     return 0
 
@@ -123,7 +123,8 @@ def cmd_history_repair(args) -> int:
 
 
 def _fmt_h(v) -> str:
-    return "-" if v is None else f"{v:.0f}"
+    from ..prognostics.rul import format_hours
+    return format_hours(v)
 
 
 def format_prognosis(obj: dict, next_check_h: float) -> str:

@@ -116,7 +116,8 @@ class PrognosisStep:
 
 
 def _h(v) -> str:
-    return "beyond the horizon" if v is None else f"{v:.0f} h"
+    from ..prognostics.rul import format_hours
+    return "beyond the horizon" if v is None else f"{format_hours(v)} h"
 
 
 def rul_values(outcome: Outcome | None) -> dict:

@@ -254,7 +254,22 @@ class FaultPrediction:
 
 
 def _num(v: float | None, nd: int = 1):
-    return None if v is None or not np.isfinite(v) else round(float(v), nd)
+    """``v`` rounded to ``nd`` decimals, or to 4 significant digits where that is finer: nothing in
+    the model fixes a time scale, and a test rig whose life is hours (tests every few minutes) must
+    read its RUL as precisely as an aircraft's whose life is thousands of hours."""
+    if v is None or not np.isfinite(v):
+        return None
+    v = float(v)
+    if v != 0.0:
+        nd = max(nd, 3 - int(np.floor(np.log10(abs(v)))))
+    return round(v, nd)
+
+
+def format_hours(v: float | None) -> str:
+    """A time [h] for a table: whole hours from 100 h, 3 significant digits below; '-' for None."""
+    if v is None:
+        return "-"
+    return f"{v:.0f}" if abs(v) >= 100.0 else f"{v:.3g}"
 
 
 def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None) -> dict:
