@@ -303,3 +303,19 @@ def test_nothing_fixes_a_time_scale(tmp_path, scale):
 def test_table_hours_keep_their_precision_at_any_scale():
     from eha_health.prognostics.rul import format_hours
     assert [format_hours(v) for v in (None, 0.03456, 3.456, 99.95, 1234.5)] == ["-", "0.0346", "3.46", "100", "1234"]
+
+
+def test_an_exact_history_states_zero_errors(tmp_path):
+    """A synthetic history may state std 0 (an exact K). The models take at least
+    prognosis.min_std: a zero variance made the likelihood singular (no model weights, no median)."""
+    h = tmp_path / "exact.csv"
+    rows = [{"actuator_id": "X", "time_h": 50.0 * i, "k_gm": 0.001 * 50.0 * i, "k_fsj": 0.0, "k_bkl": 0.0,
+             "std_gm": 0.0, "std_fsj": 0.0, "std_bkl": 0.0} for i in range(12)]
+    with open(h, "w", newline="") as f:
+        w = csv.DictWriter(f, rows[0].keys())
+        w.writeheader()
+        w.writerows(rows)
+    gm = prognose(h, thresholds=THR)["actuators"]["X"]["faults"]["gm"]
+    true = THR["gm"] / 0.001 - 550.0
+    assert gm["model_weights"] and gm["rul_median_h"] == pytest.approx(true, rel=0.01)
+    assert gm["rul_p05_h"] <= true <= gm["rul_p95_h"] and gm["std_last"] == 0.0     # reported as stated

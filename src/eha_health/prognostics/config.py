@@ -70,6 +70,7 @@ class PrognosisSettings:
     samples: int = _f("-", "Monte Carlo samples per RUL distribution")
     horizon_factor: float = _f("-", "RUL horizon in data spans")
     seed: int = _f("-", "seed of the Monte Carlo sampling")
+    min_std: float = _f("-", "smallest 1-sd of K the models take a test to have (a smaller stated one, or 0, is raised to it)")
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ class OnlineFault:
         self.regrid_factor = float(regrid_factor)
         self.tau = list(np.atleast_1d(np.asarray(tau_h, float)))
         self.y = list(np.atleast_1d(np.asarray(k, float)))
-        self.s = list(np.atleast_1d(np.asarray(std, float)))
+        self.s = list(np.maximum(np.atleast_1d(np.asarray(std, float)), self.settings.prognosis.min_std))
         if not self.tau or self.tau[0] != 0.0:
             raise ValueError("the first point of an online fault is its onset anchor, at tau = 0 h")
         self.regrids = 0
@@ -59,7 +59,8 @@ class OnlineFault:
             raise ValueError(f"test at tau={tau_h:g} h is not after the previous one ({self.tau[-1]:g} h)")
         self.tau.append(float(tau_h))
         self.y.append(float(k))
-        self.s.append(float(std))
+        std = max(float(std), self.settings.prognosis.min_std)     # as prognose: no diagnosis is exact
+        self.s.append(std)
         if tau_h > self.regrid_factor * self.span_h:
             self.regrids += 1
             self._refit()
