@@ -304,18 +304,22 @@ class HistoryTarget:
         fault = st.tuples(st.floats(0, 1.5), st.floats(-0.5, 1.5), st.sampled_from([0.5, 1.0, 2.0, 3.0]),
                           st.sampled_from([0.0, 0.001, 0.01, 0.05]), st.floats(0, 0.3),
                           st.one_of(st.none(), st.floats(0.2, 0.9)))
-        trend = st.tuples(st.integers(3, 40), st.integers(0, 2 ** 32 - 1), st.tuples(fault, fault, fault))
+        # the same history in other time units (a rig's hours, an aircraft's) and with its errors
+        # not stated, stated, or stated as 0 (an exact synthetic K)
+        trend = st.tuples(st.integers(3, 40), st.integers(0, 2 ** 32 - 1), st.tuples(fault, fault, fault),
+                          st.sampled_from([1e-3, 0.1, 1.0, 1e3]), st.sampled_from(["none", "stated", "zero"]))
         return st.one_of(st.tuples(st.just("csv"), st.tuples(header, rows)),
                          st.tuples(st.just("valid"), valid),
                          st.tuples(st.just("trend"), trend),
                          st.tuples(st.just("db"), flips))
 
     @staticmethod
-    def trend_rows(n: int, seed: int, faults) -> list[tuple]:
+    def trend_rows(n: int, seed: int, faults, scale: float = 1.0, std: str = "none") -> list[tuple]:
         """One actuator's HISTORY.csv rows from (level, rise, exponent, noise sd, share of failed
-        diagnoses, unrecorded repair at this fraction or None) per fault."""
+        diagnoses, unrecorded repair at this fraction or None) per fault; times [h] 1-100 h apart
+        times ``scale``; ``std``: no std columns, the noise sd, or 0."""
         rng = np.random.default_rng(seed)
-        t = np.cumsum(rng.uniform(1.0, 100.0, n))
+        t = np.cumsum(rng.uniform(1.0, 100.0, n)) * scale
         x = (t - t[0]) / max(t[-1] - t[0], 1e-9)
         cols = []
         for level, rise, p, sd, bad, repair in faults:
@@ -325,7 +329,8 @@ class HistoryTarget:
             if repair is not None:
                 k[x >= repair] -= level + rise * repair ** p
             cols.append(np.clip(k, 0.0, 1.5))
-        return [("A1", float(t[i]), *(float(c[i]) for c in cols)) for i in range(n)]
+        sd = [] if std == "none" else [float(f[3]) if std == "stated" else 0.0 for f in faults]
+        return [("A1", float(t[i]), *(float(c[i]) for c in cols), *sd) for i in range(n)]
 
     def check(self, case, tally: Tally) -> None:
         import csv
@@ -359,7 +364,8 @@ class HistoryTarget:
                 w.writerow(header)
                 w.writerows(rows)
             else:
-                w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl"])
+                w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl"]
+                           + (["std_gm", "std_fsj", "std_bkl"] if kind == "trend" and arg[4] != "none" else []))
                 w.writerows(self.trend_rows(*arg) if kind == "trend" else arg)
         db.write_bytes(self.db_bytes)
         with HistoryStore(db) as s:
@@ -373,15 +379,19 @@ class HistoryTarget:
             if len(s.list_tests()) != len(before) + added:
                 raise AssertionError("the store does not hold what the import reported")
         if added:
-            self._prognose(db)
+            obj = self._prognose(db)
+            if kind == "trend" and arg[3] != 1.0:
+                self._same_in_other_units(obj, arg, path)
         tally.handled += 1
 
-    @staticmethod
-    def _prognose(db: Path) -> None:
+    THRESHOLDS = {"gm": 0.816, "fsj": 0.915, "bkl": 0.838}     # fixed: no reference runs
+
+    @classmethod
+    def _prognose(cls, history: Path, next_check_h: float = 50.0) -> dict:
         """What was taken in is prognosed: every fault and the overall answer a RUL with ordered
-        quantiles and p_fail_next in [0, 1], or a reason (fixed thresholds: no reference runs)."""
+        quantiles and p_fail_next in [0, 1], or a reason; model weights sum to 1."""
         from ..prognostics.rul import prognose
-        obj = prognose(db, thresholds={"gm": 0.816, "fsj": 0.915, "bkl": 0.838})
+        obj = prognose(history, thresholds=cls.THRESHOLDS, next_check_h=next_check_h)
         for a, res in obj["actuators"].items():
             for f, F in [*res["faults"].items(), ("overall", res["overall"])]:
                 q = [F["rul_p05_h"], F["rul_median_h"], F["rul_p95_h"]]
@@ -392,6 +402,31 @@ class HistoryTarget:
                     raise AssertionError(f"{a} {f}: RUL quantiles out of order or negative: {q}")
                 if F["p_fail_next"] is not None and not 0.0 <= F["p_fail_next"] <= 1.0:
                     raise AssertionError(f"{a} {f}: p_fail_next {F['p_fail_next']} outside [0, 1]")
+                if "model_weights" in F and abs(sum(F["model_weights"].values()) - 1.0) > 0.01:
+                    raise AssertionError(f"{a} {f}: model weights {F['model_weights']} do not sum to 1")
+        return obj
+
+    def _same_in_other_units(self, obj: dict, arg: tuple, path: Path) -> None:
+        """A history in hours x c is the history in hours: every RUL and time x c, the same
+        probabilities (nothing in the models fixes a time scale)."""
+        import csv
+        n, seed, faults, scale, std = arg
+        with path.open("w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl"]
+                       + (["std_gm", "std_fsj", "std_bkl"] if std != "none" else []))
+            w.writerows(self.trend_rows(n, seed, faults, 1.0, std))
+        one = self._prognose(path, 50.0 / scale)["actuators"]
+        for a, res in obj["actuators"].items():
+            for f, F in [*res["faults"].items(), ("overall", res["overall"])]:
+                G = one[a]["faults"][f] if f != "overall" else one[a]["overall"]
+                for k in ("rul_p05_h", "rul_median_h", "rul_p95_h", "onset_h"):
+                    x, y = F.get(k), G.get(k)
+                    if (x is None) != (y is None) or (x is not None and abs(x / scale - y) > 2e-3 * max(abs(y), 1e-9)):
+                        raise AssertionError(f"{a} {f}: {k} {x} in hours x {scale:g} but {y} in hours")
+                if F["p_fail_next"] != G["p_fail_next"]:
+                    raise AssertionError(f"{a} {f}: p_fail_next {F['p_fail_next']} in hours x {scale:g} but "
+                                         f"{G['p_fail_next']} in hours")
 
 
 # ----------------------------------------------------------------------------- node messages
