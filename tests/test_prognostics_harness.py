@@ -1,7 +1,9 @@
 """Validation harness: the simulated fleet, cached real diagnoses, and one tiny end-to-end bench."""
 import json
+import math
 
 import numpy as np
+import pytest
 
 from eha_health.prognostics.config import load_settings
 from eha_health.bench.rul import (FINE_DT_H, MARK_BEGIN, MARK_END, bench_rul, diagnose_test, format_result, law_cells,
@@ -105,3 +107,22 @@ def test_bench_end_to_end_tiny(tmp_path):
     text = doc.read_text()
     assert text.startswith("# title\n") and text.endswith(f"{MARK_END}\ntail\n") and "old figures" not in text
     assert "`eha-health bench rul --units 1`" in text and format_result(r) in text
+
+
+def test_bench_figures_carry_their_sampling_intervals():
+    """24 units make a share uncertain by +-20 %: alpha-lambda gets a Wilson interval, the coverage
+    one from resampling whole units (a unit's predictions are not independent points)."""
+    from eha_health.bench.rul import UnitScore, _unit_bootstrap_ci, _wilson
+    lo, hi = _wilson(13, 24)
+    z, p, n = 1.959964, 13 / 24, 24        # Wilson (1927) by its formula
+    c, h = (p + z * z / (2 * n)) / (1 + z * z / n), z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    assert (lo, hi) == pytest.approx((c - h, c + h), abs=1e-6)
+
+    def unit(i, covered):
+        r = np.full(20, 100.0)
+        return UnitScore(f"U{i}", 1000.0, np.arange(20.0), r, r * (0.5 if covered else 2.0), r, r * 3.0,
+                         np.full(20, 0.5), r, np.zeros(20, bool), np.ones(20, bool))
+    units = [unit(i, i % 2 == 0) for i in range(24)]      # half the units covered at every point
+    ci = _unit_bootstrap_ci(units)
+    assert ci[0] < 0.5 < ci[1] and ci[1] - ci[0] > 0.3    # 480 independent points would give +-0.045
+    assert _unit_bootstrap_ci(units) == ci                 # seeded

@@ -436,6 +436,31 @@ def oracle_alpha_lambda(units: list[Unit], scores: list[UnitScore], thr: dict[st
     return out
 
 
+def _wilson(k: int, n: int) -> list[float] | None:
+    """95 % Wilson interval of a share k / n of independent units (a fleet of 24 reads +-20 %)."""
+    from scipy.stats import binomtest
+    if n == 0:
+        return None
+    ci = binomtest(k, n).proportion_ci(confidence_level=0.95, method="wilson")
+    return [float(ci.low), float(ci.high)]
+
+
+def _unit_bootstrap_ci(scores: list[UnitScore], seed: int = 0) -> list[float] | None:
+    """95 % interval of the 90 % coverage (points with a RUL), units resampled whole: a unit's
+    predictions share its path and are not independent points (scipy.stats.bootstrap, percentile)."""
+    from scipy.stats import bootstrap
+    hits, counts = [], []
+    for sc in scores:
+        have = np.isfinite(sc.p05) | np.isfinite(sc.p95)
+        hits.append(float(np.sum((sc.p05[have] <= sc.r_true[have]) & (sc.r_true[have] <= sc.p95[have]))))
+        counts.append(float(have.sum()))
+    if sum(counts) == 0 or len(scores) < 2:
+        return None
+    res = bootstrap((np.array(hits), np.array(counts)), lambda h, c: np.sum(h) / np.sum(c), paired=True,
+                    vectorized=False, n_resamples=2000, method="percentile", random_state=np.random.default_rng(seed))
+    return [float(res.confidence_interval.low), float(res.confidence_interval.high)]
+
+
 def score_fleet(scores: list[UnitScore], b: BenchSettings) -> dict:
     """Fleet metrics, ours and the naive baseline's, and their ratios."""
     from ..prognostics import metrics as M
@@ -446,7 +471,8 @@ def score_fleet(scores: list[UnitScore], b: BenchSettings) -> dict:
             res = [M.alpha_lambda(sc.t_h, pick(sc), sc.eol_h, b.alpha, lam) for sc in scores]
             res = [r for r in res if r is not None]
             al[str(lam)] = {"fraction": float(np.mean(res)) if res else float("nan"),
-                            "misses": int(len(res) - sum(res)), "units": len(res)}
+                            "misses": int(len(res) - sum(res)), "units": len(res),
+                            "ci95": _wilson(int(sum(res)), len(res))}
         ph = np.array([M.prognostic_horizon(sc.t_h, pick(sc), sc.eol_h, b.alpha) / sc.eol_h for sc in scores])
         ph_stay = np.array([M.prognostic_horizon(sc.t_h, pick(sc), sc.eol_h, b.alpha, stay=True) / sc.eol_h
                             for sc in scores])
@@ -467,6 +493,7 @@ def score_fleet(scores: list[UnitScore], b: BenchSettings) -> dict:
     have = np.isfinite(lo) | np.isfinite(hi)
     pit = np.concatenate([sc.pit for sc in scores])[have]
     out["model"]["coverage90"] = M.coverage(lo[have], hi[have], rt[have])
+    out["model"]["coverage90_ci95"] = _unit_bootstrap_ci(scores)
     out["model"]["coverage90_all_points"] = M.coverage(np.where(have, lo, np.inf), hi, rt)
     out["model"]["coverage50"] = float(np.mean((pit >= 0.25) & (pit <= 0.75)))
     out["model"]["coverage80"] = float(np.mean((pit >= 0.10) & (pit <= 0.90)))
@@ -561,6 +588,10 @@ def bench_rul(settings: Settings | None = None, cache_dir: str | Path = "out/rul
     return result
 
 
+def _ci(ci: list[float] | None, how: str = "") -> str:
+    return "" if not ci else f"; 95 % CI {100 * ci[0]:.0f}-{100 * ci[1]:.0f} %{how}"
+
+
 def format_result(r: dict) -> str:
     """Markdown table of a bench result (model vs naive baseline, targets)."""
     m, n = r["model"], r["naive"]
@@ -569,7 +600,8 @@ def format_result(r: dict) -> str:
     for lam in m["alpha_lambda"]:
         a, c = m["alpha_lambda"][lam], n["alpha_lambda"][lam]
         lines.append(f"| alpha-lambda (alpha {r['settings']['alpha']}) at lambda {lam}: units within | "
-                     f"{a['fraction']:.0%} ({a['misses']} misses) | {c['fraction']:.0%} ({c['misses']} misses) | "
+                     f"{a['fraction']:.0%} ({a['misses']} misses{_ci(a.get('ci95'))}) | {c['fraction']:.0%} "
+                     f"({c['misses']} misses{_ci(c.get('ci95'))}) | "
                      f"{(a['misses'] / c['misses']) if c['misses'] else float('nan'):.2f} (misses) |")
     if "oracle" in r:
         o = r["oracle"]["alpha_lambda"]
@@ -590,7 +622,8 @@ def format_result(r: dict) -> str:
                        ("nasa_score_mean", "NASA score per point (d in % of life, lower is better)")):
         a, c = m[key], n[key]
         lines.append(f"| {label} | {a:.3f} | {c:.3f} | {a / c if c else float('nan'):.2f} |")
-    lines.append(f"| 90 % interval coverage (points with a RUL) | {m['coverage90']:.1%} | - | - |")
+    lines.append(f"| 90 % interval coverage (points with a RUL) | {m['coverage90']:.1%}"
+                 f"{_ci(m.get('coverage90_ci95'), ', units resampled')} | - | - |")
     lines.append(f"| 90 % interval coverage (all points, no RUL = miss) | {m['coverage90_all_points']:.1%} | - | - |")
     lines.append(f"| 80 % / 50 % interval coverage | {m['coverage80']:.1%} / {m['coverage50']:.1%} | - | - |")
     lines.append(f"| points without a RUL | {m['no_prediction_points']} | {n['no_prediction_points']} | - |")
