@@ -443,6 +443,13 @@ def test_import_with_a_channel_map_and_units(tmp_path):
     from eha_health.signals.response import Response
     back = Response.from_csv(csv, required=("t", "command", "position"))
     assert np.allclose(back.position, r.position) and np.allclose(back.load, r.load)
+    # a logger's export with a byte-order mark first (the header's first name is not '\ufeffidx')
+    bom = tmp_path / "rig_bom.txt"
+    bom.write_bytes(b"\xef\xbb\xbf" + data.read_bytes())
+    m2 = _write(tmp_path, "map2.yaml", yaml.safe_dump({
+        "delimiter": ",", "skip_rows": 1, "header_row": 0, "sample_rate": 500.0,
+        "channels": {"command": {"column": "idx", "unit": "mm"}, "position": {"column": "pos_mm", "unit": "mm"}}}))
+    assert np.allclose(import_text(bom, m2).command, 1e-3 * np.arange(400))
     # the same record as an MCAP bag: command and joint state only (no pressure or current topic,
     # empty velocity), the load cell in the joint state's effort; read back as a measured record
     bag = tmp_path / "run.mcap"

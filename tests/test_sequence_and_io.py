@@ -43,6 +43,10 @@ def test_csv_round_trip(tmp_path):
     back = Response.from_csv(f)
     for c in CSV_COLUMNS:
         assert np.allclose(getattr(back, c), getattr(r, c), rtol=1e-9, atol=1e-15)
+    # the same file saved by a spreadsheet as "CSV UTF-8" (a byte-order mark first)
+    bom = tmp_path / "bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + f.read_bytes())
+    assert np.array_equal(Response.from_csv(bom).position, back.position)
 
 
 @pytest.mark.parametrize("content, match", [

@@ -19,7 +19,8 @@ def test_rows_are_stripped_and_located_by_line(tmp_path):
 def test_missing_column_is_named_with_what_the_file_needs(tmp_path):
     p = tmp_path / "t.csv"
     p.write_text("a,c\n1,2\n")
-    with pytest.raises(TableError, match=r"t\.csv: missing column\(s\) b \(a table needs a, b\)$"):
+    with pytest.raises(TableError, match=r"t\.csv: missing column\(s\) b \(a table needs a, b\); the header reads "
+                                         r"'a,c' \(names are case-sensitive, comma-separated\)$"):
         list(csv_rows(p, ("a", "b"), TableError, need="a table needs a, b"))
 
 
@@ -37,3 +38,11 @@ def test_short_row_gives_none_for_the_missing_cells(tmp_path):
     p = tmp_path / "t.csv"
     p.write_text("a,b\n1\n")
     assert list(csv_rows(p, ("a", "b"), TableError)) == [("t.csv line 2", {"a": "1", "b": None})]
+
+
+def test_a_spreadsheets_byte_order_mark_is_not_part_of_the_first_name(tmp_path):
+    """Excel's "CSV UTF-8" starts with U+FEFF; read as text it made the first column
+    '\\ufeffa' and the file 'missing column a'."""
+    p = tmp_path / "t.csv"
+    p.write_bytes("a,b\r\n1,x\r\n".encode("utf-8-sig"))
+    assert list(csv_rows(p, ("a", "b"), TableError)) == [("t.csv line 2", {"a": "1", "b": "x"})]

@@ -119,7 +119,7 @@ def import_text(data_path: str | Path, map_path: str | Path) -> Response:
     if not data_path.is_file():
         raise ImportError_(f"{data_path}: no such data file")
     delim = m.get("delimiter", ",")
-    lines = data_path.read_text(errors="replace").splitlines()
+    lines = data_path.read_text(encoding="utf-8-sig", errors="replace").splitlines()   # a byte-order mark is not data
     header = None
     if "header_row" in m:
         h = m["header_row"]

@@ -63,7 +63,7 @@ class Response:
         path = Path(path)
         if not path.is_file():
             raise ValueError(f"{path}: no such file")
-        with path.open() as f:
+        with path.open(encoding="utf-8-sig", errors="replace") as f:     # a spreadsheet's byte-order mark
             header = f.readline().strip()
         cols = [c.strip() for c in header.split(",")]
         missing = [c for c in required if c not in cols]

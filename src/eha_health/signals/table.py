@@ -21,12 +21,15 @@ def csv_rows(path: str | Path, required: tuple[str, ...], error: type[Exception]
     must exist (the callers say what it should have been).
     """
     path = Path(path)
-    with path.open(newline="") as f:
+    # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark, which would otherwise
+    # become part of the first column's name
+    with path.open(newline="", encoding="utf-8-sig", errors="replace") as f:
         reader = csv.DictReader(f)
         cols = [c.strip() for c in reader.fieldnames or []]
         missing = [c for c in required if c not in cols]
         if missing:
-            raise error(f"{path}: missing column(s) {', '.join(missing)}" + (f" ({need})" if need else ""))
+            raise error(f"{path}: missing column(s) {', '.join(missing)}" + (f" ({need})" if need else "")
+                        + f"; the header reads {','.join(cols)[:200]!r} (names are case-sensitive, comma-separated)")
         reader.fieldnames = cols
         for row in reader:
             # line_num, not a row count: blank lines are skipped but still lines of the file
