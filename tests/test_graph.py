@@ -159,13 +159,19 @@ def test_log_cut_off_mid_run_keeps_every_complete_window(tmp_path):
 def test_three_processes_over_dds_with_an_isolated_domain(tmp_path):
     domain = 1 + (int(os.environ["ROS_DOMAIN_ID"]) + 50) % 200   # not the in-process tests' domain
     res = launch(Faults(0.4, 0.6, 0.4), rate=0.0, log_path=tmp_path / "launch.mcap", domain_id=domain,
-                 timeout_s=900)      # a deadline for a stuck graph (one test took 120 s at load 20), not a speed check
+                 timeout_s=900,      # a deadline for a stuck graph (one test took 120 s at load 20), not a speed check
+                 history=tmp_path / "h.sqlite", actuator_id="ACT-3")
     assert res["ok"], res["summary"]
     assert all(rc is not None for rc in res["returncodes"].values())   # nobody left behind
     (r,) = res["results"]
     est = np.array([r["diagnosis"][n] for n in NAMES])
     assert np.abs(est - [0.4, 0.6, 0.4]).max() <= TOL
     assert r["truth"] == {"k_gm": 0.4, "k_fsj": 0.6, "k_bkl": 0.4}
+    # the monitor process appended its diagnosis to the history it was given
+    from eha_health.prognostics.store import HistoryStore
+    with HistoryStore(tmp_path / "h.sqlite") as st:
+        (row,) = st.list_tests()
+    assert row["actuator_id"] == "ACT-3" and abs(row["k_fsj"] - est[1]) < 1e-9
 
 
 def test_periodic_tests_play_back_to_back_and_each_is_diagnosed():

@@ -69,7 +69,7 @@ def cmd_launch(args) -> int:
     faults = Faults.parse(args.faults)
     res = launch(faults, effects=[e for e in args.effects.split(",") if e], seed=args.seed, tests=args.tests,
                  rate=args.rate, method=args.method, log_path=args.log, domain_id=args.domain_id,
-                 timeout_s=args.timeout)
+                 timeout_s=args.timeout, history=args.history, actuator_id=args.actuator)
     print(json.dumps(res, indent=2, default=float) if args.json else res["summary"])
     return 0 if res["ok"] else 1
 
@@ -106,6 +106,9 @@ def register(sub) -> None:
     la.add_argument("--rate", type=float, default=1.0, help="playback speed (1 real time, 0 as fast as possible)")
     la.add_argument("--log", default="out/launch.mcap", help="MCAP log of the monitor")
     la.add_argument("--timeout", type=float, default=300.0, help="give up after this long [s]")
+    la.add_argument("--history", help="SQLite health history the monitor appends each diagnosis to (and publishes "
+                                      "the RUL from); none by default")
+    la.add_argument("--actuator", default="eha", help="actuator id of the diagnoses (history, /diagnostics)")
     la.set_defaults(func=cmd_launch)
 
     rp = sub.add_parser("replay", help="republish a bag's input topics into a live graph (with a monitor)",
