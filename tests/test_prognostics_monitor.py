@@ -152,3 +152,20 @@ def test_status_says_what_the_history_checks_did(tmp_path):
     assert vals["unrecorded_repair_h_gm"] == 600.0 and vals["outliers_h_bkl"] == "500"
     assert not any(k.endswith("_fsj") and k.startswith(("unrecorded", "outliers", "last_test")) for k in vals)
     assert "last_test_off_trend_gm" not in vals
+
+
+def test_a_lower_bound_on_p_fail_escalates_and_is_published(tmp_path):
+    """A next check beyond the prediction horizon leaves P(fail before it) bounded below only
+    (p_fail_next_min): the status follows the bound and says '>='."""
+    from eha_health.monitoring.prognosis import Outcome
+    db = tmp_path / "h.sqlite"
+    seed_history(db)
+    step = PrognosisStep(db, "eha", next_check_h=50.0, warn_p_fail=0.05, error_p_fail=0.2)
+    ov = {"rul_median_h": None, "rul_p05_h": None, "rul_p95_h": None, "p_fail_next": None,
+          "p_fail_next_min": 0.3, "dominant_fault": "gm", "reason": "the next check lies beyond the horizon"}
+    F = {**ov, "p_fail_next_min": 0.3}
+    out = Outcome(True, {"faults": {f: dict(F) for f in FAULT_KEYS}, "overall": ov}, time_h=10.0)
+    level, why = step.level(out)
+    assert level == "ERROR" and ">= 0.300" in why
+    kv = rul_values(out)
+    assert kv["p_fail_next"] == "none" and kv["p_fail_next_min"] == 0.3 and kv["p_fail_next_min_gm"] == 0.3

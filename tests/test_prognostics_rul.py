@@ -319,3 +319,26 @@ def test_an_exact_history_states_zero_errors(tmp_path):
     true = THR["gm"] / 0.001 - 550.0
     assert gm["model_weights"] and gm["rul_median_h"] == pytest.approx(true, rel=0.01)
     assert gm["rul_p05_h"] <= true <= gm["rul_p95_h"] and gm["std_last"] == 0.0     # reported as stated
+
+
+def test_a_next_check_beyond_the_prediction_horizon_gives_a_lower_bound(tmp_path):
+    """Samples beyond the horizon (20 data spans) may fail before a check further out or after it:
+    P(fail before the next check) is then only bounded below. Before, they counted as 'after' and
+    a rig history spanning 0.06 h, asked about a check in 50 h, read p_fail_next 0.005 for a fault
+    whose linear trend crosses in about 3.6 h."""
+    h = tmp_path / "rig.csv"
+    rows = [{"actuator_id": "R", "time_h": 0.004 * i, "k_gm": 0.0, "k_fsj": 0.001 * i, "k_bkl": 0.0,
+             "std_gm": 1e-4, "std_fsj": 1e-4, "std_bkl": 1e-4} for i in range(15)]
+    with open(h, "w", newline="") as f:
+        w = csv.DictWriter(f, rows[0].keys())
+        w.writeheader()
+        w.writerows(rows)
+    far = prognose(h, thresholds=THR, next_check_h=50.0)["actuators"]["R"]["faults"]["fsj"]
+    assert far["rul_median_h"] is None and far["p_fail_next"] is None
+    assert 0.0 <= far["p_fail_next_min"] < 1.0 and "beyond the prediction horizon" in far["reason"]
+    near = prognose(h, thresholds=THR, next_check_h=0.01)["actuators"]["R"]["faults"]["fsj"]
+    assert near["p_fail_next"] is not None and "p_fail_next_min" not in near
+    # the table says it is a bound
+    from eha_health.cli.prognostics import format_prognosis
+    obj = prognose(h, thresholds=THR, next_check_h=50.0)
+    assert f">= {far['p_fail_next_min']:.3f}" in format_prognosis(obj, 50.0)

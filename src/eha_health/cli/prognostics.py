@@ -135,9 +135,11 @@ def format_prognosis(obj: dict, next_check_h: float) -> str:
         lines.append(f"  {'fault':8s} {'model':18s} {'RUL median [5 %, 95 %] h':>28s} "
                      f"{'P(fail < ' + format(next_check_h, 'g') + ' h)':>16s} {'threshold':>9s} {'tests':>5s}")
         for name, f in [*r["faults"].items(), ("overall", r["overall"])]:
+            sampled = f["p_fail_next"] is not None or f.get("p_fail_next_min") is not None
             rul = (f"{_fmt_h(f['rul_median_h'])} [{_fmt_h(f['rul_p05_h'])}, {_fmt_h(f['rul_p95_h'])}]"
-                   if f["p_fail_next"] is not None else "-")
-            pf = "-" if f["p_fail_next"] is None else f"{f['p_fail_next']:.3f}"
+                   if sampled else "-")
+            pf = (f"{f['p_fail_next']:.3f}" if f["p_fail_next"] is not None else
+                  f">= {f['p_fail_next_min']:.3f}" if f.get("p_fail_next_min") is not None else "-")
             thr = "-" if f["threshold"] is None else f"{f['threshold']:.3f}"
             model = (f["model"] or "-") + (" +fleet" if f.get("fleet_prior") else "")
             lines.append(f"  {name:8s} {model:18s} {rul:>28s} {pf:>16s} {thr:>9s} {f['n_tests']:5d}")

@@ -103,10 +103,12 @@ class PrognosisStep:
     def level(self, outcome: Outcome) -> tuple[str, str | None]:
         """OK / WARN / ERROR from P(failure before the next check) overall, and why."""
         ov = (outcome.prognosis or {}).get("overall") or {}
-        p = ov.get("p_fail_next")
+        p, rel = ov.get("p_fail_next"), "="
+        if p is None and ov.get("p_fail_next_min") is not None:
+            p, rel = ov["p_fail_next_min"], ">="     # the next check lies beyond the prediction horizon
         if p is None:
             return "OK", None
-        why = (f"P(failure before the next check in {self.next_check_h:g} h) = {p:.3f}"
+        why = (f"P(failure before the next check in {self.next_check_h:g} h) {rel} {p:.3f}"
                f" (dominant {ov.get('dominant_fault')}, RUL median {_h(ov.get('rul_median_h'))})")
         if p >= self.error_p_fail:
             return "ERROR", f"{why} >= {self.error_p_fail:g}"
@@ -135,6 +137,8 @@ def rul_values(outcome: Outcome | None) -> dict:
     ov = prog["overall"]
     for k in RUL_FIELDS:
         out[k] = "none" if ov.get(k) is None else float(ov[k])
+    if ov.get("p_fail_next_min") is not None:
+        out["p_fail_next_min"] = float(ov["p_fail_next_min"])
     out["dominant_fault"] = ov.get("dominant_fault") or "none"
     if ov.get("reason"):
         out["rul_reason"] = ov["reason"]
@@ -142,6 +146,8 @@ def rul_values(outcome: Outcome | None) -> dict:
         F = prog["faults"][f]
         for k in RUL_FIELDS:
             out[f"{k}_{f}"] = "none" if F.get(k) is None else float(F[k])
+        if F.get("p_fail_next_min") is not None:
+            out[f"p_fail_next_min_{f}"] = float(F["p_fail_next_min"])
         # what the history's own checks did (prognostics.scatter), only where they did something
         if F.get("unrecorded_repair_h") is not None:
             out[f"unrecorded_repair_h_{f}"] = float(F["unrecorded_repair_h"])

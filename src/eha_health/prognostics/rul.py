@@ -20,7 +20,8 @@ of the RUL [h], each drawing its onset first:
 
 Samples beyond ``horizon_factor`` data spans count as "beyond the horizon" (inf). The
 overall RUL is the first fault to reach its threshold: min over faults, sample by sample
-(faults drawn independently). ``p_fail_next`` = P(RUL <= next_check_h).
+(faults drawn independently). ``p_fail_next`` = P(RUL <= next_check_h); when the next check
+lies beyond the horizon and samples do too, only its lower bound is known (``p_fail_next_min``).
 
 Fleet prior: the other actuators with at least ``fleet.min_points`` points since onset
 give lives from onset to threshold L_j = tau_now + median RUL; log L is fitted by a normal
@@ -237,6 +238,7 @@ class FaultPrediction:
     fits: list | None = None
     fit_index: int | None = None          # row of ``fits`` the trend is drawn from ...
     trend_candidate: int = 0              # ... and its onset candidate
+    horizon_h: float = math.inf           # shortest prediction horizon of the samples (horizon_factor x span) [h]
 
     def quantiles(self) -> np.ndarray | None:
         """(p05, median, p95) of the RUL [h]; inf beyond the horizon."""
@@ -246,11 +248,17 @@ class FaultPrediction:
             self._q = weighted_quantiles(self.samples, self.weights, (0.05, 0.5, 0.95))
         return self._q
 
-    def p_fail(self, horizon_h: float) -> float | None:
+    def p_fail(self, within_h: float) -> float | None:
+        """P(RUL <= within_h), counting samples beyond the horizon as later: exact while
+        ``within_h`` <= :attr:`horizon_h`, a lower bound beyond it (:meth:`p_fail_known`)."""
         if self.samples is None:
             return None
         w = self.weights if self.weights is not None else np.ones_like(self.samples)
-        return float(np.sum(w * (self.samples <= horizon_h)) / np.sum(w))
+        return float(np.sum(w * (self.samples <= within_h)) / np.sum(w))
+
+    def p_fail_known(self, within_h: float) -> bool:
+        """Whether :meth:`p_fail` is exact: no sample beyond a horizon shorter than ``within_h``."""
+        return self.samples is None or within_h <= self.horizon_h or bool(np.all(np.isfinite(self.samples)))
 
 
 def _num(v: float | None, nd: int = 1):
@@ -280,6 +288,9 @@ def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None) 
     if q is not None:
         d["rul_p05_h"], d["rul_median_h"], d["rul_p95_h"] = (_num(v) for v in q)
         d["p_fail_next"] = round(p.p_fail(next_check_h), 4)
+        if not p.p_fail_known(next_check_h):
+            # samples beyond the horizon may fail before the check or after it: a lower bound only
+            d["p_fail_next_min"], d["p_fail_next"] = d["p_fail_next"], None
         if usage_per_h is not None:
             d["rul_p05_usage"], d["rul_median_usage"], d["rul_p95_usage"] = (
                 _num(v * usage_per_h, 2) for v in q)
@@ -299,8 +310,12 @@ def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None) 
     if p.onset_weights is not None and len(p.onset_weights) > 1:
         # where the wear began: the onset candidates and their posterior weights
         d["onset_posterior"] = {f"{t:g}": round(float(w), 3) for t, w in zip(p.candidate_onsets_h, p.onset_weights)}
-    if p.reason:
-        d["reason"] = p.reason
+    reasons = [p.reason] if p.reason else []
+    if "p_fail_next_min" in d:
+        reasons.append(f"the next check in {next_check_h:g} h lies beyond the prediction horizon "
+                       f"({format_hours(p.horizon_h)} h): P(failure before it) >= {d['p_fail_next_min']:g}")
+    if reasons:
+        d["reason"] = "; ".join(reasons)
     return d
 
 
@@ -318,6 +333,7 @@ def overall(preds: dict[str, FaultPrediction], n_tests: int) -> FaultPrediction:
     first = np.argmin(S, 0)
     out = FaultPrediction(S.min(0), None if all(p.weights is None for p in have.values()) else W,
                           "first-to-threshold", n_tests=n_tests)
+    out.horizon_h = min(p.horizon_h for p in have.values())
     wn = W / W.sum()
     p_first = {f: float(np.sum(wn * (first == i) * np.isfinite(S.min(0)))) for i, f in enumerate(have)}
     out.model_weights = {}
@@ -414,6 +430,7 @@ def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_i
         if p.samples is not None and a.samples is not None and len(p.samples) == len(a.samples) == len(u_last):
             # an even mixture: with the last test (wear jumped) or without it (a failed diagnosis)
             p.samples = np.where(u_last < 0.5, a.samples, p.samples)
+            p.horizon_h = min(p.horizon_h, a.horizon_h)
 
 
 def _predict_prepared(preds: list[FaultPrediction], thresholds: np.ndarray, fault_index: int, s: Settings) -> None:
@@ -449,6 +466,7 @@ def _predict_prepared(preds: list[FaultPrediction], thresholds: np.ndarray, faul
         else:
             onset = _pick(np.cumsum(wc)[None, :] / max(wc.sum(), 1e-300), draws.u_onset)[0]   # per sample
             p.samples = samples[rows[onset], np.arange(samples.shape[1])]
+        p.horizon_h = s.prognosis.horizon_factor * min(c.span_h for c in p.candidates)
         mw = w.sum(0)
         p.model_weights = dict(zip(names, map(float, mw)))
         best = int(np.argmax(mw))
