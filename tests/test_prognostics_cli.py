@@ -172,6 +172,31 @@ def test_history_add_csv_and_mcap(tmp_path, capsys):
     assert tests[0]["std_gm"] > 0 and tests[0]["method"] == "deterministic" and tests[0]["wall_time_utc"]
 
 
+
+def test_each_test_of_a_bag_is_a_recording_of_its_own(tmp_path, capsys):
+    """A monitor log of N tests holds N recordings: before, the file's hash stood for all of them,
+    and the second test of a bag was 'already in' the history once the first was."""
+    from eha_health.io.bagrun import write_run
+    from eha_health.io.mcaplog import BagWriter
+    p = load("reference").with_effect_names(["sensor_noise"])
+    bag, db = tmp_path / "two.mcap", tmp_path / "h.sqlite"
+    with BagWriter(bag) as w:
+        for tid, (k, t0) in enumerate([(0.3, 1), (0.36, 9)], start=1):
+            write_run(w, simulate(kind="reference", faults=Faults(k_gm=k), params=p, seed=tid), test_id=tid,
+                      start_ns=t0 * 1_000_000_000)
+    common = ["--history", str(db), "--actuator", "X", "--quiet"]
+    for tid, t in ((1, "10"), (2, "20")):
+        code, out, _ = run(capsys, ["history", "add", str(bag), "--test", str(tid), "--time-h", t, *common])
+        assert code == 0 and out.startswith(f"added: X at {t} h"), out
+    for extra in (["--test", "2"], ["--test", "1"], []):       # no --test: the first window
+        code, out, _ = run(capsys, ["history", "add", str(bag), *extra, "--time-h", "30", *common])
+        assert code == 0 and "already in" in out, out
+    code, out, _ = run(capsys, ["history", "list", "--history", str(db), "--json"])
+    tests = json.loads(out)["tests"]
+    assert [t["time_h"] for t in tests] == [10.0, 20.0]
+    assert [t["k_gm"] for t in tests] == [pytest.approx(0.3, abs=0.02), pytest.approx(0.36, abs=0.02)]
+
+
 def test_thresholds_command(capsys):
     code, out, _ = run(capsys, ["thresholds", "--json"])
     obj = json.loads(out)

@@ -35,7 +35,7 @@ def _finite(v: float | None, name: str, minimum: float = 0.0) -> None:
 
 def cmd_history_add(args) -> int:
     from ..identification.diagnose import diagnose
-    from ..prognostics.store import HistoryStore, sha256_file
+    from ..prognostics.store import HistoryStore, recording_hash
     path = Path(args.run)
     if not path.is_file():
         raise UsageError(f"{path}: no such recording")
@@ -55,7 +55,10 @@ def cmd_history_add(args) -> int:
     if time_h is None:
         raise UsageError(f"{path}: no --time-h and the recording carries no operating time "
                          f"(MCAP metadata history/test_<id>)")
-    digest = sha256_file(path)
+    # a bag's first test window is the file; each later one a recording of its own
+    tid, ids = r.meta.get("test_id"), r.meta.get("test_ids") or []
+    window = tid if tid is not None and ids and tid != ids[0] else None
+    digest = recording_hash(path, window)
     with HistoryStore(db) as st:
         known = [t for t in st.list_tests() if t["source_hash"] == digest]
         if known:   # before the diagnosis: the same recording twice adds nothing
@@ -63,11 +66,12 @@ def cmd_history_add(args) -> int:
             if t["actuator_id"] != args.actuator:
                 raise UsageError(f"{path} is already in the history for actuator {t['actuator_id']}, "
                                  f"not {args.actuator}")
-            print(f"{path} is already in {db} (actuator {t['actuator_id']}, time_h {t['time_h']:g}): nothing added")
+            print(f"{path}{'' if tid is None else f' test {tid}'} is already in {db} (actuator {t['actuator_id']}, "
+                  f"time_h {t['time_h']:g}): nothing added")
             return 0
         d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=progress(args))
         added = st.add_diagnosis(d, args.actuator, time_h, usage=usage, usage_unit=args.usage_unit,
-                                 source_path=path, sim_time_s=sim_s)
+                                 source_path=path, sim_time_s=sim_s, source_window=window)
     ks = ", ".join(f"{n.upper()}={v:.4f}+-{d.std['k_' + n]:.4f}" for n, v in zip(FAULT_KEYS, d.faults.as_tuple()))
     if args.json:
         print(json.dumps({"added": added, "actuator_id": args.actuator, "time_h": time_h, "usage": usage,

@@ -227,7 +227,8 @@ def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence
         start, end = int(cmd.min()), int(cmd.max())
         notes.append(f"{path}: no test-window marks; using the whole record")
     try:
-        r = assemble(chans, start, end, sequence, meta={"source": str(path), "test_id": tid}, record=record)
+        r = assemble(chans, start, end, sequence, meta={"source": str(path), "test_id": tid, "test_ids": sorted(wins)},
+                     record=record)
     except WindowError as e:
         why = f"{path}: test {tid}: {e}" if tid is not None else f"{path}: {e}"
         if bag.truncated:

@@ -15,8 +15,9 @@ Schema version 1 (``PRAGMA user_version`` and table ``schema_version``):
   [s], optional), ``usage`` and ``usage_unit`` (flight hours or cycles, optional), ``k_gm,
   k_fsj, k_bkl`` in [0, ``physics.faults.FAULT_UPPER``] and ``std_gm, std_fsj, std_bkl`` >= 0, ``method``, ``cost`` and
   ``fit_rms`` (JSON, per-channel RMS: fit quality), ``discrepancy`` (verdict), ``warnings``
-  (JSON), ``source_path``, ``source_hash`` (sha256 of the recording, or of the diagnosis
-  inputs when there is no file; UNIQUE: the same recording twice adds no row),
+  (JSON), ``source_path``, ``source_hash`` (sha256 of the recording -- a bag's later test windows
+  each with its window id, :func:`recording_hash` --, or of the diagnosis inputs when there is
+  no file; UNIQUE: the same recording twice adds no row),
   ``software_version``; UNIQUE (actuator_id, time_h).
 * ``maintenance``: ``actuator_id``, ``time_h``, ``fault`` (gm, fsj, bkl, all), ``action``
   (repair, replace), ``wall_time_utc``, ``note``. A fault's trend restarts at its last
@@ -115,6 +116,14 @@ def sha256_file(path: str | Path) -> str:
         for block in iter(lambda: f.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
+
+
+def recording_hash(path: str | Path, window: int | None = None) -> str:
+    """Identity of a recorded test: the sha256 of its file, or, for a test window of a bag that is
+    not the bag's first, the sha256 of that and the window id (a bag of N tests is N recordings;
+    the first keeps the plain file hash, which is what a single-test bag and earlier stores hold)."""
+    h = sha256_file(path)
+    return h if window is None else hashlib.sha256(f"{h}#test={int(window)}".encode()).hexdigest()
 
 
 def sha256_json(obj) -> str:
@@ -394,18 +403,20 @@ class HistoryStore:
 
     def add_diagnosis(self, diagnosis, actuator_id: str, time_h: float, usage: float | None = None,
                       usage_unit: str | None = None, source_path: str | Path | None = None,
-                      response=None, sim_time_s: float | None = None, discrepancy: str | None = None) -> bool:
+                      response=None, sim_time_s: float | None = None, discrepancy: str | None = None,
+                      source_window: int | None = None) -> bool:
         """Append one :class:`eha_health` Diagnosis; True if a row was added.
 
-        The source hash is the sha256 of ``source_path`` (CSV or bag) if given, else of the
-        ``response`` channels, else of the diagnosis result itself.
+        The source hash is that of ``source_path`` (CSV or bag; ``source_window``: a test window of
+        the bag other than its first, :func:`recording_hash`) if given, else of the ``response``
+        channels, else of the diagnosis result itself.
         """
         k = diagnosis.faults.as_tuple()
         std = tuple(diagnosis.std[f"k_{n}"] for n in FAULT_KEYS)
         if source_path is not None:
             if not Path(source_path).is_file():
                 raise PrognosticsError(f"{source_path}: no such recording")
-            h = sha256_file(source_path)
+            h = recording_hash(source_path, source_window)
         elif response is not None:
             hh = hashlib.sha256()
             for c in ("t", "command", *MEASURED):
