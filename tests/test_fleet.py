@@ -249,3 +249,33 @@ def test_a_csv_that_starts_before_the_test_and_lacks_a_column_is_diagnosed_and_s
     assert "error" not in out, out.get("error")
     assert max(abs(k - v) for k, v in zip(out["k"], truth)) <= 0.01, out["k"]
     assert out["warnings"][0].startswith("the FDI test starts at t = 0.3 s") and set(out["rms"]) == set(cols[2:])
+
+
+def test_a_monitor_log_of_several_tests_is_one_recording_per_test(client, tmp_path, capsys):
+    """A monitor log holds every test it appended (metadata history/test_<id> each): the batch
+    diagnoses each test window, stores each once, and 'history add --test' knows them as the same
+    recordings. Before, the batch took the file's first window only."""
+    from eha_health import Faults, load, simulate
+    from eha_health.io.bagrun import write_run
+    from eha_health.io.mcaplog import BagWriter
+    p = load("reference").with_effect_names(["sensor_noise"])
+    bag, db = tmp_path / "monitor_log.mcap", tmp_path / "h.sqlite"
+    truth = {1: 0.30, 2: 0.33, 3: 0.36}
+    with BagWriter(bag) as w:
+        w.add_metadata("eha_health", {"actuator_id": "ACT-9"})
+        for tid, k in truth.items():
+            write_run(w, simulate(kind="reference", faults=Faults(k_gm=k), params=p, seed=tid), test_id=tid,
+                      start_ns=tid * 8_000_000_000)
+            w.add_metadata(f"history/test_{tid}", {"time_h": f"{100 * tid}", "usage": f"{250 * tid}"})
+    s = diagnose_fleet(find_recordings([bag]), db, method=METHOD, client=client)
+    assert (s["diagnosed"], s["skipped"], s["failed"]) == (3, 0, 0), s
+    rows = _rows(db)
+    assert [(r["actuator_id"], r["time_h"], r["usage"]) for r in rows] == [
+        ("ACT-9", 100.0, 250.0), ("ACT-9", 200.0, 500.0), ("ACT-9", 300.0, 750.0)]
+    assert [r["k_gm"] for r in rows] == [pytest.approx(k, abs=0.02) for k in truth.values()]
+    assert len({r["source_hash"] for r in rows}) == 3
+    again = diagnose_fleet(find_recordings([bag]), db, method=METHOD, client=client)
+    assert (again["diagnosed"], again["skipped"]) == (0, 3)
+    assert cli_main(["history", "add", str(bag), "--test", "2", "--actuator", "ACT-9", "--history", str(db),
+                     "--quiet"]) == 0
+    assert "already in" in capsys.readouterr().out and len(_rows(db)) == 3

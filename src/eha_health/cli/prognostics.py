@@ -55,9 +55,9 @@ def cmd_history_add(args) -> int:
     if time_h is None:
         raise UsageError(f"{path}: no --time-h and the recording carries no operating time "
                          f"(MCAP metadata history/test_<id>)")
-    # a bag's first test window is the file; each later one a recording of its own
+    # each test window of a bag of several is a recording of its own
     tid, ids = r.meta.get("test_id"), r.meta.get("test_ids") or []
-    window = tid if tid is not None and ids and tid != ids[0] else None
+    window = tid if tid is not None and len(ids) > 1 else None
     digest = recording_hash(path, window)
     with HistoryStore(db) as st:
         known = [t for t in st.list_tests() if t["source_hash"] == digest]

@@ -37,8 +37,8 @@ from typing import Callable
 from ..identification.diagnose import DEFAULT_METHOD, METHODS
 from ..physics.params import load
 from ..prognostics.config import PrognosticsError
-from ..prognostics.store import HealthRecord, HistoryStore, sha256_file
-from .recordings import FleetError, Recording, complete_identity
+from ..prognostics.store import HealthRecord, HistoryStore, recording_hash, sha256_file
+from .recordings import FleetError, Recording, bag_windows, complete_identity
 from .worker import FleetWorkerSetup, diagnose_recordings, worker_info
 
 #: The environment a LocalCluster worker process starts with (Dask's ``pre-spawn-environ``): the
@@ -106,7 +106,8 @@ class FailureLog:
     def add(self, rec: Recording, reason: str, source_hash: str | None = None) -> None:
         row = {"wall_time_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
                "path": str(rec.path), "source_hash": source_hash or "", "actuator_id": rec.actuator_id or "",
-               "time_h": "" if rec.time_h is None else f"{rec.time_h:g}", "reason": " ".join(str(reason).split())}
+               "time_h": "" if rec.time_h is None else f"{rec.time_h:g}",
+               "reason": (f"test {rec.window}: " if rec.window is not None else "") + " ".join(str(reason).split())}
         new = not self.path.is_file() or self.path.stat().st_size == 0
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with self.path.open("a", newline="") as f:
@@ -181,9 +182,18 @@ def plan(recordings: list[Recording], store: HistoryStore, failures: FailureLog)
     repeats), fill ids and times from bag metadata; unreadable or unidentified files fail here."""
     known = {r[0] for r in store.conn.execute("SELECT source_hash FROM tests")}
     todo, seen, skipped = [], set(), 0
+    file_hashes: dict[Path, str] = {}
+    windows = []
     for rec in recordings:
         try:
-            h = sha256_file(rec.path)
+            windows += bag_windows(rec)        # a bag of several tests: one recording each
+        except FleetError as e:
+            failures.add(rec, str(e))
+    for rec in windows:
+        try:
+            if rec.path not in file_hashes:
+                file_hashes[rec.path] = sha256_file(rec.path)
+            h = recording_hash(rec.path, rec.window, file_hashes[rec.path])
         except OSError as e:
             failures.add(rec, f"cannot read: {e.strerror or e}")
             continue
@@ -277,7 +287,7 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
     if size < 1:
         raise FleetError(f"recordings per task must be >= 1, got {size}")
     chunks = [todo[i:i + size] for i in range(0, len(todo), size)]
-    futures = [client.submit(diagnose_recordings, [str(rec.path) for rec, _ in chunk], params, method, seed,
+    futures = [client.submit(diagnose_recordings, [(str(rec.path), rec.window) for rec, _ in chunk], params, method, seed,
                              discrepancy, key=f"eha-diagnose-{chunk[0][1]}-{len(chunk)}", pure=False)
                for chunk in chunks]
     hashes = {f.key: [h for _, h in chunk] for f, chunk in zip(futures, chunks)}

@@ -48,9 +48,11 @@ class Recording:
     usage_unit: str | None = None
     truth: dict | None = None
     origin: str = ""          # where the id and time come from (manifest line, bag metadata)
+    window: int | None = None  # the test window of a bag of several (None: the file's only or first test)
 
     def where(self) -> str:
-        return f"{self.path}" + (f" ({self.origin})" if self.origin else "")
+        return f"{self.path}" + (f" test {self.window}" if self.window is not None else "") + (
+            f" ({self.origin})" if self.origin else "")
 
 
 def _number(text, where: str, name: str, optional: bool = False) -> float | None:
@@ -123,6 +125,32 @@ def bag_identity(path: Path) -> dict:
     return out
 
 
+def bag_windows(rec: Recording) -> list[Recording]:
+    """A bag of several tests as one recording per test: a monitor log holds a
+    :data:`HISTORY_META` record (time, usage) per test it appended to a history. A CSV, a bag
+    with at most one such record, or a recording a manifest identified stays as it is (the
+    manifest's row is the file's first test window)."""
+    if rec.actuator_id is not None or rec.path.suffix.lower() != ".mcap":
+        return [rec]
+    try:
+        md = bag_metadata(rec.path)
+    except Exception:      # an unreadable bag fails in the batch, saying why
+        return [rec]
+    prefix = HISTORY_META.format("")
+    ids = sorted(int(n[len(prefix):]) for n in md if n.startswith(prefix) and n[len(prefix):].isdigit())
+    if len(ids) < 2:
+        return [rec]
+    actuator = dict(md.get(META_RECORD, {})).get("actuator_id") or None
+    out = []
+    for i in ids:
+        meta = md[HISTORY_META.format(i)]
+        where = f"{rec.path}: metadata {HISTORY_META.format(i)}"
+        out.append(Recording(rec.path, actuator, _number(meta.get("time_h"), where, "time_h", optional=True),
+                             _number(meta.get("usage"), where, "usage", optional=True), meta.get("usage_unit") or None,
+                             None, "bag metadata", window=i))
+    return out
+
+
 def find_recordings(paths: list[str | Path]) -> list[Recording]:
     """Recordings under ``paths`` (files, or folders searched recursively for .mcap and .csv).
 
@@ -180,11 +208,12 @@ def complete_identity(rec: Recording) -> None:
         raise FleetError(f"unknown actuator id / test time: {where}, and no manifest lists the file")
 
 
-def read_recording(path: str | Path) -> tuple[Response, dict | None]:
-    """(response, truth or None) of one recording; ValueError names what is wrong with the file."""
+def read_recording(path: str | Path, window: int | None = None) -> tuple[Response, dict | None]:
+    """(response, truth or None) of one recording (``window``: a bag's test window, default its first);
+    ValueError names what is wrong with the file."""
     path = Path(path)
     if path.suffix.lower() == ".mcap":
-        run = read_run(path, partial=True)      # a bag without a measured channel's topic: the others
+        run = read_run(path, window, partial=True)      # a bag without a measured channel's topic: the others
         truth = {k: float(run.truth[k]) for k in FAULT_NAMES} if run.truth else None
         return run.response, truth
     if path.suffix.lower() == ".csv":

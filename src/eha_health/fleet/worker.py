@@ -68,8 +68,9 @@ def worker_info(dask_worker) -> dict:
 
 
 def diagnose_recording(path: str, params, method: str = DEFAULT_METHOD, seed: int = 0,
-                       discrepancy: bool = False, threads: int = 1) -> dict:
-    """Diagnose one recording; a dict with the estimate, or with ``error`` (one line) if it failed.
+                       discrepancy: bool = False, threads: int = 1, window: int | None = None) -> dict:
+    """Diagnose one recording (``window``: a bag's test window, default its first); a dict with the
+    estimate, or with ``error`` (one line) if it failed.
 
     ``params`` is the calibrated monitor model, scattered to every worker once by the client.
     Times [s]: ``read_s`` (reading the file), ``diagnosis_s`` (``diagnose``), ``discrepancy_s``,
@@ -82,7 +83,7 @@ def diagnose_recording(path: str, params, method: str = DEFAULT_METHOD, seed: in
     try:
         from ..identification.record import from_test_start
         from .recordings import read_recording
-        response, truth = read_recording(path)
+        response, truth = read_recording(path, window)
         # a logger started before the test: cut where the command starts the sequence, and say so
         response, cut = from_test_start(response)
         t1, c1 = time.perf_counter(), time.thread_time()
@@ -112,9 +113,9 @@ def diagnose_recording(path: str, params, method: str = DEFAULT_METHOD, seed: in
     return out
 
 
-def diagnose_recordings(paths: list[str], params, method: str = DEFAULT_METHOD, seed: int = 0,
+def diagnose_recordings(items: list[tuple[str, int | None]], params, method: str = DEFAULT_METHOD, seed: int = 0,
                         discrepancy: bool = False) -> list[dict]:
-    """:func:`diagnose_recording` of each of ``paths`` in turn, in one task: Dask's and the client's
-    costs per task are paid once for them (a diagnosis takes 0.07 s; those costs were 7 % of all CPU
-    with one recording per task, measured by `eha-health bench fleet`)."""
-    return [diagnose_recording(p, params, method, seed, discrepancy) for p in paths]
+    """:func:`diagnose_recording` of each (path, test window) in turn, in one task: Dask's and the
+    client's costs per task are paid once for them (a diagnosis takes 0.07 s; those costs were 7 % of
+    all CPU with one recording per task, measured by `eha-health bench fleet`)."""
+    return [diagnose_recording(p, params, method, seed, discrepancy, window=w) for p, w in items]

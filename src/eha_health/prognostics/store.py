@@ -15,9 +15,9 @@ Schema version 1 (``PRAGMA user_version`` and table ``schema_version``):
   [s], optional), ``usage`` and ``usage_unit`` (flight hours or cycles, optional), ``k_gm,
   k_fsj, k_bkl`` in [0, ``physics.faults.FAULT_UPPER``] and ``std_gm, std_fsj, std_bkl`` >= 0, ``method``, ``cost`` and
   ``fit_rms`` (JSON, per-channel RMS: fit quality), ``discrepancy`` (verdict), ``warnings``
-  (JSON), ``source_path``, ``source_hash`` (sha256 of the recording -- a bag's later test windows
-  each with its window id, :func:`recording_hash` --, or of the diagnosis inputs when there is
-  no file; UNIQUE: the same recording twice adds no row),
+  (JSON), ``source_path``, ``source_hash`` (sha256 of the recording -- each test window of a bag
+  of several with its window id, :func:`recording_hash` --, or of the diagnosis inputs when there
+  is no file; UNIQUE: the same recording twice adds no row),
   ``software_version``; UNIQUE (actuator_id, time_h).
 * ``maintenance``: ``actuator_id``, ``time_h``, ``fault`` (gm, fsj, bkl, all), ``action``
   (repair, replace), ``wall_time_utc``, ``note``. A fault's trend restarts at its last
@@ -118,11 +118,11 @@ def sha256_file(path: str | Path) -> str:
     return h.hexdigest()
 
 
-def recording_hash(path: str | Path, window: int | None = None) -> str:
-    """Identity of a recorded test: the sha256 of its file, or, for a test window of a bag that is
-    not the bag's first, the sha256 of that and the window id (a bag of N tests is N recordings;
-    the first keeps the plain file hash, which is what a single-test bag and earlier stores hold)."""
-    h = sha256_file(path)
+def recording_hash(path: str | Path, window: int | None = None, file_hash: str | None = None) -> str:
+    """Identity of a recorded test: the sha256 of its file (a CSV, a bag of one test), or for test
+    window ``window`` of a bag of several, the sha256 of that and the window id: a bag of N tests
+    is N recordings. ``file_hash``: the file's sha256 if already known."""
+    h = file_hash or sha256_file(path)
     return h if window is None else hashlib.sha256(f"{h}#test={int(window)}".encode()).hexdigest()
 
 
@@ -407,9 +407,9 @@ class HistoryStore:
                       source_window: int | None = None) -> bool:
         """Append one :class:`eha_health` Diagnosis; True if a row was added.
 
-        The source hash is that of ``source_path`` (CSV or bag; ``source_window``: a test window of
-        the bag other than its first, :func:`recording_hash`) if given, else of the ``response``
-        channels, else of the diagnosis result itself.
+        The source hash is that of ``source_path`` (CSV or bag; ``source_window``: the test window
+        of a bag of several, :func:`recording_hash`) if given, else of the ``response`` channels,
+        else of the diagnosis result itself.
         """
         k = diagnosis.faults.as_tuple()
         std = tuple(diagnosis.std[f"k_{n}"] for n in FAULT_KEYS)
