@@ -94,11 +94,17 @@ def test_offline_and_replayed_diagnosis_equal_the_live_one(live, tmp_path):
     d_live = live["result"]["diagnosis"]
     run = read_run(live["log"])
     np.testing.assert_array_equal(run.response.position, live["result"]["response"].position)
-    out = replay(live["log"], rate=0.0, log_path=tmp_path / "replayed.mcap")
+    out = replay(live["log"], rate=0.0, log_path=tmp_path / "replayed.mcap", history=tmp_path / "h.sqlite",
+                 actuator_id="ACT-R")
     assert out["sent"] == 4 * 3500 + 2
     (r,) = out["results"]
     for n in NAMES:
         assert r["diagnosis"][n] == getattr(d_live.faults, n)
+    # the replay's monitor appended its diagnosis to the history it was given
+    from eha_health.prognostics.store import HistoryStore
+    with HistoryStore(tmp_path / "h.sqlite") as st:
+        (row,) = st.list_tests()
+    assert row["actuator_id"] == "ACT-R" and row["k_gm"] == d_live.faults.k_gm
     assert r["truth"] == dict(zip(NAMES, live["faults"].as_tuple()))
     # the replay's own log holds the same samples
     assert read_bag(tmp_path / "replayed.mcap", topics=["/eha/pressure"]).messages["/eha/pressure"]

@@ -76,8 +76,10 @@ def cmd_launch(args) -> int:
 
 def cmd_replay(args) -> int:
     from ..ros.replay import replay
+    if args.history and args.no_monitor:
+        raise UsageError("--history needs the replay's monitor (drop --no-monitor)")
     res = replay(args.bag, rate=args.rate, with_monitor=not args.no_monitor, log_path=args.log,
-                 domain_id=args.domain_id)
+                 domain_id=args.domain_id, history=args.history, actuator_id=args.actuator)
     print(json.dumps(res, indent=2, default=float) if args.json else res["summary"])
     return 0
 
@@ -117,4 +119,6 @@ def register(sub) -> None:
     rp.add_argument("--rate", type=float, default=1.0, help="speed vs the recording (0 as fast as possible)")
     rp.add_argument("--no-monitor", action="store_true", help="only publish (a monitor runs elsewhere)")
     rp.add_argument("--log", default="", help="MCAP log of the replay's monitor")
+    rp.add_argument("--history", help="SQLite health history the replay's monitor appends each diagnosis to")
+    rp.add_argument("--actuator", default="eha", help="actuator id of the diagnoses (history, /diagnostics)")
     rp.set_defaults(func=cmd_replay)

@@ -119,8 +119,11 @@ class ReplayNode(Node):
 
 def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_path: str | Path = "",
            domain_id: int | None = None, method: str = DEFAULT_METHOD, timeout_s: float = 600.0,
-           wait_for_subscribers_s: float = 10.0) -> dict:
-    """Republish ``bag`` into the graph; with ``with_monitor`` also diagnose it here.
+           wait_for_subscribers_s: float = 10.0, history: str | Path | None = None,
+           actuator_id: str = "eha") -> dict:
+    """Republish ``bag`` into the graph; with ``with_monitor`` also diagnose it here, and with a
+    ``history`` append each diagnosis of ``actuator_id`` to it (operating time: the window's
+    start stamp in hours, as the monitor does) and publish the RUL.
 
     Publishing starts once a subscriber takes the commands and the marks, or after
     ``wait_for_subscribers_s`` (a monitor process that is still starting on a busy machine
@@ -141,9 +144,12 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
     try:
         mon = None
         if with_monitor:
+            prog = [Parameter("history", value=str(Path(history).resolve())),
+                    Parameter("actuator_id", value=str(actuator_id))] if history else []
             mon = MonitorNode(context=ctx, parameter_overrides=[Parameter("log_path", value=str(log_path)),
                                                                  Parameter("method", value=method),
-                                                                 Parameter("keep_verdicts", value=0)])   # returns all
+                                                                 Parameter("keep_verdicts", value=0),   # returns all
+                                                                 *prog])
             nodes.append(mon)
         # with the monitor here, pace by what it has taken (flow control), not by a fixed rate
         delivered = (lambda: sum(mon.received.values())) if mon is not None else None
