@@ -266,16 +266,22 @@ def test_a_monitor_log_of_several_tests_is_one_recording_per_test(client, tmp_pa
         for tid, k in truth.items():
             write_run(w, simulate(kind="reference", faults=Faults(k_gm=k), params=p, seed=tid), test_id=tid,
                       start_ns=tid * 8_000_000_000)
-            w.add_metadata(f"history/test_{tid}", {"time_h": f"{100 * tid}", "usage": f"{250 * tid}"})
+            w.add_metadata(f"history/test_{tid}", {"time_h": f"{100 * tid}", "usage": f"{250 * tid}",
+                                                   "sim_time_s": f"{8.0 * tid}"})
+    # test 1 was appended live by the monitor that wrote the log (its row hashed by the channels)
+    from eha_health.prognostics.store import HealthRecord
+    with HistoryStore(db) as st:
+        st.add_tests([HealthRecord("ACT-9", 100.0, (0.3, 0.0, 0.0), (0.001,) * 3, usage=250.0, sim_time_s=8.0,
+                                   source_hash="live-monitor-row")])
     s = diagnose_fleet(find_recordings([bag]), db, method=METHOD, client=client)
-    assert (s["diagnosed"], s["skipped"], s["failed"]) == (3, 0, 0), s
+    assert (s["diagnosed"], s["skipped"], s["failed"]) == (2, 0, 0), s      # test 1: the same test, not stored again
     rows = _rows(db)
     assert [(r["actuator_id"], r["time_h"], r["usage"]) for r in rows] == [
         ("ACT-9", 100.0, 250.0), ("ACT-9", 200.0, 500.0), ("ACT-9", 300.0, 750.0)]
     assert [r["k_gm"] for r in rows] == [pytest.approx(k, abs=0.02) for k in truth.values()]
-    assert len({r["source_hash"] for r in rows}) == 3
+    assert len({r["source_hash"] for r in rows}) == 3 and [r["sim_time_s"] for r in rows] == [8.0, 16.0, 24.0]
     again = diagnose_fleet(find_recordings([bag]), db, method=METHOD, client=client)
-    assert (again["diagnosed"], again["skipped"]) == (0, 3)
+    assert (again["diagnosed"], again["skipped"], again["failed"]) == (0, 2, 0)   # test 1: diagnosed, not stored
     assert cli_main(["history", "add", str(bag), "--test", "2", "--actuator", "ACT-9", "--history", str(db),
                      "--quiet"]) == 0
     assert "already in" in capsys.readouterr().out and len(_rows(db)) == 3

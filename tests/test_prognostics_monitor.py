@@ -133,6 +133,12 @@ def test_monitor_node_appends_and_publishes_the_rul(tmp_path):
     assert row["wall_time_utc"] and row["method"] == "deterministic"
     # the monitor's log says where the test went: history add of the log finds the same time
     assert history_times(log, res["test_id"])["time_h"] == last + 180.0
+    # ... and the same test: history add of the log (hashed by the file, not by the channels as the
+    # monitor did) recognises it by its actuator, time and window stamp and adds nothing
+    from eha_health.cli import main as cli_main
+    assert cli_main(["history", "add", str(log), "--actuator", "eha", "--history", str(db),
+                     "--method", "deterministic", "--quiet"]) == 0
+    assert count(db) == 10
 
 
 def test_status_says_what_the_history_checks_did(tmp_path):

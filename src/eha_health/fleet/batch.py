@@ -219,7 +219,7 @@ def plan(recordings: list[Recording], store: HistoryStore, failures: FailureLog)
 def record_of(rec: Recording, h: str, res: dict) -> HealthRecord:
     """The store row of one successful task result."""
     return HealthRecord(rec.actuator_id, float(rec.time_h), tuple(res["k"]), tuple(res["std"]), usage=rec.usage,
-                        usage_unit=rec.usage_unit, method=res["method"], cost=res["cost"], fit_rms=res["rms"],
+                        usage_unit=rec.usage_unit, sim_time_s=rec.sim_time_s, method=res["method"], cost=res["cost"], fit_rms=res["rms"],
                         discrepancy=res.get("discrepancy"), warnings=res["warnings"], source_path=str(rec.path),
                         source_hash=h)
 

@@ -49,6 +49,7 @@ class Recording:
     truth: dict | None = None
     origin: str = ""          # where the id and time come from (manifest line, bag metadata)
     window: int | None = None  # the test window of a bag of several (None: the file's only or first test)
+    sim_time_s: float | None = None  # the window's start stamp [s] where the bag's metadata has it
 
     def where(self) -> str:
         return f"{self.path}" + (f" test {self.window}" if self.window is not None else "") + (
@@ -106,18 +107,18 @@ def write_manifest(path: str | Path, rows: list[dict]) -> Path:
 
 
 def bag_identity(path: Path) -> dict:
-    """``{actuator_id, time_h, usage, usage_unit}`` of a bag, where its metadata has them: the actuator
+    """``{actuator_id, time_h, usage, usage_unit, sim_time_s}`` of a bag, where its metadata has them: the actuator
     from :data:`META_RECORD`, the time and usage from its one :data:`HISTORY_META` record (else from
     :data:`META_RECORD`)."""
     md = bag_metadata(path)
     rec = dict(md.get(META_RECORD, {}))
     tests = [name for name in md if name.startswith(HISTORY_META.format(""))]
     if len(tests) == 1:
-        rec.update({k: v for k, v in md[tests[0]].items() if k in ("time_h", "usage", "usage_unit")})
+        rec.update({k: v for k, v in md[tests[0]].items() if k in ("time_h", "usage", "usage_unit", "sim_time_s")})
     out: dict = {}
     if rec.get("actuator_id"):
         out["actuator_id"] = rec["actuator_id"]
-    for key in ("time_h", "usage"):
+    for key in ("time_h", "usage", "sim_time_s"):
         if rec.get(key) not in (None, ""):
             out[key] = _number(rec[key], f"{path}: metadata", key)
     if rec.get("usage_unit"):
@@ -147,7 +148,8 @@ def bag_windows(rec: Recording) -> list[Recording]:
         where = f"{rec.path}: metadata {HISTORY_META.format(i)}"
         out.append(Recording(rec.path, actuator, _number(meta.get("time_h"), where, "time_h", optional=True),
                              _number(meta.get("usage"), where, "usage", optional=True), meta.get("usage_unit") or None,
-                             None, "bag metadata", window=i))
+                             None, "bag metadata", window=i,
+                             sim_time_s=_number(meta.get("sim_time_s"), where, "sim_time_s", optional=True)))
     return out
 
 
@@ -200,6 +202,7 @@ def complete_identity(rec: Recording) -> None:
         if "actuator_id" in ident and "time_h" in ident:
             rec.actuator_id, rec.time_h = ident["actuator_id"], ident["time_h"]
             rec.usage, rec.usage_unit = ident.get("usage"), ident.get("usage_unit")
+            rec.sim_time_s = ident.get("sim_time_s")
             rec.origin = "bag metadata"
     if rec.actuator_id is None or rec.time_h is None:
         where = (f"no metadata '{META_RECORD}' with actuator_id and '{HISTORY_META.format('<id>')}' with time_h"

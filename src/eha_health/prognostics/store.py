@@ -368,7 +368,10 @@ class HistoryStore:
         """Append validated records in one transaction; returns the rows added.
 
         A record whose ``source_hash`` is already stored for the same actuator adds nothing
-        (the same recording twice); for another actuator it is an error.
+        (the same recording twice); for another actuator it is an error. So does a record of a test
+        stored by another path: the same actuator, operating time and window stamp ``sim_time_s``
+        (a monitor appends a test live, hashed by its channels; ``history add`` or a batch of the
+        monitor's log brings it again, hashed by the file).
         """
         wheres = wheres or [f"test {i + 1} (actuator {r.actuator_id}, time_h={r.time_h})"
                             for i, r in enumerate(records)]
@@ -389,6 +392,10 @@ class HistoryStore:
                 if owner is not None and owner != r.actuator_id:
                     raise PrognosticsError(f"{w}: this recording is already in the history for actuator {owner}")
                 if owner is not None or r.source_hash in seen:
+                    continue
+                if r.sim_time_s is not None and self.conn.execute(
+                        "SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ? AND sim_time_s = ?",
+                        (r.actuator_id, float(r.time_h), float(r.sim_time_s))).fetchone():
                     continue
                 seen.add(r.source_hash)
                 new.append((w, r))
