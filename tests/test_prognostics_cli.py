@@ -85,6 +85,9 @@ def test_import_list_repair_prognose(db, tmp_path, capsys):
     png = tmp_path / "p.png"
     code, out, _ = run(capsys, ["prognose", "--history", str(db), "--actuator", "A0", "--plot", str(png)])
     assert code == 0 and "dominant fault: gm" in out and png.read_bytes()[:4] == b"\x89PNG"
+    # without --actuator the plot is of the first actuator, and the output says which
+    code, out, _ = run(capsys, ["prognose", "--history", str(db), "--plot", str(png)])
+    assert code == 0 and "(actuator A0, the first of " in out
     # prognose straight from a HISTORY.csv gives the same answer as from its imported store
     code, out_csv, _ = run(capsys, ["prognose", "--history", str(tmp_path / "h.csv"), "--actuator", "A0", "--json"])
     code, out_db, _ = run(capsys, ["prognose", "--history", str(db), "--actuator", "A0", "--json"])

@@ -170,8 +170,10 @@ def cmd_prognose(args) -> int:
     if not src.is_file():
         raise UsageError(f"{src}: no such history")
     _finite(args.next_check_h, "--next-check-h", minimum=1e-12)
+    plotted = None
     if args.plot:
         obj = plot_prognosis(src, args.plot, args.actuator, args.next_check_h)
+        plotted = next(iter(obj["actuators"]))
         if args.actuator is None:   # the plot shows one actuator; the answer is about all of them
             obj = prognose(src, None, args.next_check_h)
     else:
@@ -183,7 +185,8 @@ def cmd_prognose(args) -> int:
     nc = args.next_check_h if args.next_check_h is not None else load_settings().prognosis.next_check_h
     print(format_prognosis(obj, nc))
     if args.plot:
-        print(f"  plot: {args.plot}")
+        n = len(obj["actuators"])
+        print(f"  plot: {args.plot} (actuator {plotted}" + (f", the first of {n}; --actuator picks another)" if n > 1 else ")"))
     return 0
 
 
