@@ -770,8 +770,8 @@ def test_a_velocity_feedback_gain_off_its_nominal_is_found_and_the_excess_over_n
 
 def _bench_case(name, faults, seed):
     """A record of `bench discrepancy` (seed 0): ``name``'s effect at ``faults``, noise ``seed``."""
-    from eha_health.bench.discrepancy import EFFECTS, reference_run, recording_alterations
-    return reference_run(faults, seed, dict(EFFECTS).get(name), dict(recording_alterations()).get(name))
+    from eha_health.bench.discrepancy import effect_change, reference_run
+    return reference_run(faults, seed, *effect_change(name))
 
 
 def test_a_further_round_starts_from_the_base_re_identified_with_the_effect():

@@ -24,7 +24,7 @@ from eha_health.physics.params import load
 def main() -> None:
     n_noise = int(sys.argv[1]) if len(sys.argv) > 1 else 8
     ref = load("reference").with_effect_names(["sensor_noise"])
-    alter = dict(bd.recording_alterations())["pressure_scale"]
+    alter = bd.effect_change("pressure_scale")[1]
     rng = np.random.default_rng(11)
     cases = [("pressure_scale", f) for f in bd.FAULT_SETS]
     cases += [(None, Faults(*rng.uniform(0, 1, 3))) for _ in range(n_noise)]

@@ -16,7 +16,7 @@ from __future__ import annotations
 import sys
 import time
 
-from eha_health.bench.discrepancy import EFFECTS, reference_run, recording_alterations
+from eha_health.bench.discrepancy import effect_change, reference_run
 from eha_health.discrepancy.loop import analyse_fdi_test
 from eha_health.physics.faults import Faults
 from eha_health.physics.params import load
@@ -30,13 +30,13 @@ CASES = (("sensor_delay", (0.8, 0.9, 0.8)), ("position_offset", (0.8, 0.9, 0.8))
 
 
 def main() -> None:
-    ref, plant, altered = load("reference"), dict(EFFECTS), dict(recording_alterations())
+    ref = load("reference")
     only = sys.argv[1:]
     for i, (name, k) in enumerate(CASES):
         if only and name not in only:
             continue
         faults = Faults(*k)
-        r = reference_run(faults, 500 + i, plant.get(name), altered.get(name), ref)
+        r = reference_run(faults, 500 + i, *effect_change(name), ref)
         t0 = time.perf_counter()
         rep = analyse_fdi_test(r, max_effects=1, truth=faults.as_dict())
         print(f"{name or 'noise only'} at {k}: {rep.verdict}; first {', '.join(c.name for c in rep.candidates[:3])}; "

@@ -122,6 +122,17 @@ def recording_alterations(channels=MEASURED) -> tuple[tuple[str, object], ...]:
                  for c in channels for k in ALTER) + tuple(ALTER_RECORD.items())
 
 
+def effect_change(name: str | None) -> tuple[object, object]:
+    """(plant change or None, recording alteration or None) that puts candidate ``name``'s effect
+    in a :func:`reference_run` (None: neither, a noise-only run); KeyError for an unknown name."""
+    if name is None:
+        return None, None
+    plant, altered = dict(EFFECTS).get(name), dict(recording_alterations()).get(name)
+    if plant is None and altered is None:
+        raise KeyError(f"no bench effect named {name!r}")
+    return plant, altered
+
+
 #: Two effects at once: (expected candidates, plant change, recording alteration).
 TWO_EFFECTS = (
     (("pressure_offset", "sensor_delay"), lambda p: p.with_effects(sensor_delay={"enabled": True, "delay": 1e-3}),
