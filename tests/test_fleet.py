@@ -274,14 +274,14 @@ def test_a_monitor_log_of_several_tests_is_one_recording_per_test(client, tmp_pa
         st.add_tests([HealthRecord("ACT-9", 100.0, (0.3, 0.0, 0.0), (0.001,) * 3, usage=250.0, sim_time_s=8.0,
                                    source_hash="live-monitor-row")])
     s = diagnose_fleet(find_recordings([bag]), db, method=METHOD, client=client)
-    assert (s["diagnosed"], s["skipped"], s["failed"]) == (2, 0, 0), s      # test 1: the same test, not stored again
+    assert (s["diagnosed"], s["skipped"], s["failed"]) == (2, 1, 0), s      # test 1: the same test, not again
     rows = _rows(db)
     assert [(r["actuator_id"], r["time_h"], r["usage"]) for r in rows] == [
         ("ACT-9", 100.0, 250.0), ("ACT-9", 200.0, 500.0), ("ACT-9", 300.0, 750.0)]
     assert [r["k_gm"] for r in rows] == [pytest.approx(k, abs=0.02) for k in truth.values()]
     assert len({r["source_hash"] for r in rows}) == 3 and [r["sim_time_s"] for r in rows] == [8.0, 16.0, 24.0]
     again = diagnose_fleet(find_recordings([bag]), db, method=METHOD, client=client)
-    assert (again["diagnosed"], again["skipped"], again["failed"]) == (0, 2, 0)   # test 1: diagnosed, not stored
+    assert (again["diagnosed"], again["skipped"], again["failed"]) == (0, 3, 0)
     assert cli_main(["history", "add", str(bag), "--test", "2", "--actuator", "ACT-9", "--history", str(db),
                      "--quiet"]) == 0
     assert "already in" in capsys.readouterr().out and len(_rows(db)) == 3

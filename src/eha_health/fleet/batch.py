@@ -178,9 +178,13 @@ def _fmt_rate(n: int, seconds: float) -> str:
 
 
 def plan(recordings: list[Recording], store: HistoryStore, failures: FailureLog) -> tuple[list, int]:
-    """(to do: [(recording, hash)], skipped): hash every file, drop those the store has (and
-    repeats), fill ids and times from bag metadata; unreadable or unidentified files fail here."""
+    """(to do: [(recording, hash)], skipped): hash every file (a bag of several tests: every test
+    window), drop those the store has (and repeats, and tests a monitor appended live: the same
+    actuator, time and window stamp), fill ids and times from bag metadata; unreadable or
+    unidentified files fail here."""
     known = {r[0] for r in store.conn.execute("SELECT source_hash FROM tests")}
+    # tests a monitor appended live (hashed by their channels): known by actuator, time and stamp
+    live = set(store.conn.execute("SELECT actuator_id, time_h, sim_time_s FROM tests WHERE sim_time_s IS NOT NULL"))
     todo, seen, skipped = [], set(), 0
     file_hashes: dict[Path, str] = {}
     windows = []
@@ -205,6 +209,9 @@ def plan(recordings: list[Recording], store: HistoryStore, failures: FailureLog)
             complete_identity(rec)
         except ValueError as e:
             failures.add(rec, str(e), h)
+            continue
+        if rec.sim_time_s is not None and (rec.actuator_id, float(rec.time_h), float(rec.sim_time_s)) in live:
+            skipped += 1
             continue
         todo.append((rec, h))
     # earliest tests of every actuator first, so results mostly arrive in the order they are written
