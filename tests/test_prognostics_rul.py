@@ -342,3 +342,16 @@ def test_a_next_check_beyond_the_prediction_horizon_gives_a_lower_bound(tmp_path
     from eha_health.cli.prognostics import format_prognosis
     obj = prognose(h, thresholds=THR, next_check_h=50.0)
     assert f">= {far['p_fail_next_min']:.3f}" in format_prognosis(obj, 50.0)
+
+
+def test_a_trend_already_past_its_threshold_says_so(tmp_path):
+    h = tmp_path / "past.csv"
+    rows = [{"actuator_id": "P", "time_h": 50.0 * i, "k_gm": min(1.5, 0.0016 * 50.0 * i), "k_fsj": 0.01,
+             "k_bkl": 0.02} for i in range(12)]
+    with open(h, "w", newline="") as f:
+        w = csv.DictWriter(f, rows[0].keys())
+        w.writeheader()
+        w.writerows(rows)
+    gm = prognose(h, thresholds=THR)["actuators"]["P"]["faults"]["gm"]
+    assert gm["rul_median_h"] == 0.0 and gm["p_fail_next"] == 1.0
+    assert gm["reason"] == f"K {rows[-1]['k_gm']:.3f} at or beyond the threshold {THR['gm']:.3f}: RUL 0"

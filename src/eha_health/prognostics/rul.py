@@ -297,6 +297,9 @@ def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None) 
         beyond = [n for n, v in zip(("p05", "median", "p95"), q) if not np.isfinite(v)]
         if beyond and p.reason is None:
             p.reason = f"rul_{', rul_'.join(beyond)} beyond the prediction horizon (null)"
+        if (q[1] == 0.0 and p.reason is None and p.k_last is not None and p.threshold is not None
+                and p.k_last >= p.threshold):
+            p.reason = f"K {p.k_last:.3f} at or beyond the threshold {p.threshold:.3f}: RUL 0"
     if p.model_weights:
         d["model_weights"] = {k: round(v, 3) for k, v in p.model_weights.items() if v > 0}
     d.update({"n_points": p.n_points, "onset_h": _num(p.onset_h), "k_last": _num(p.k_last, 4),
