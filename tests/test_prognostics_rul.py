@@ -319,6 +319,8 @@ def test_an_exact_history_states_zero_errors(tmp_path):
     true = THR["gm"] / 0.001 - 550.0
     assert gm["model_weights"] and gm["rul_median_h"] == pytest.approx(true, rel=0.01)
     assert gm["rul_p05_h"] <= true <= gm["rul_p95_h"] and gm["std_last"] == 0.0     # reported as stated
+    fsj = prognose(h, thresholds=THR)["actuators"]["X"]["faults"]["fsj"]
+    assert "K 0.0000 +- 0.0000 " in fsj["reason"]                                  # as stated, not the floor
 
 
 def test_a_next_check_beyond_the_prediction_horizon_gives_a_lower_bound(tmp_path):

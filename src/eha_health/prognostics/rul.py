@@ -390,7 +390,7 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
             p.reason = f"K {k[-1]:.3f} at or beyond the threshold {threshold:.3f} with no trend: RUL 0"
             p.samples = np.zeros(s.prognosis.samples)   # as many as a fault with a RUL: overall takes the minimum per sample
             return p, None
-        p.reason = (f"no degradation since the last repair: K {k[-1]:.4f} +- {std[-1]:.4f} "
+        p.reason = (f"no degradation since the last repair: K {k[-1]:.4f} +- {p.std_last:.4f} "
                     f"(threshold {threshold:.3f}), no trend to extrapolate")
         return p, None
     p.onset_h = float(time_h[anchor])
