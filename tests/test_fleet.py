@@ -285,3 +285,13 @@ def test_a_monitor_log_of_several_tests_is_one_recording_per_test(client, tmp_pa
     assert cli_main(["history", "add", str(bag), "--test", "2", "--actuator", "ACT-9", "--history", str(db),
                      "--quiet"]) == 0
     assert "already in" in capsys.readouterr().out and len(_rows(db)) == 3
+
+
+def test_successive_batches_on_one_client_lose_no_task(bags, client, tmp_path):
+    """A persistent cluster runs batch after batch. The monitor model was scattered under its
+    content hash, the same key every batch: re-scattered while the previous batch's release was
+    deleting it, a task failed with 'lost dependencies' (7 of 12 successive batches, measured)."""
+    (rec,) = [r for r in read_manifest(bags / "manifest.csv")][:1]
+    for i in range(8):
+        s = diagnose_fleet([rec], tmp_path / f"h{i}.sqlite", method=METHOD, client=client)
+        assert (s["diagnosed"], s["failed"]) == (1, 0), (i, s["failures"])

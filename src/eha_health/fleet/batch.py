@@ -281,7 +281,11 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
          progress, summary: dict, per_task: int | None = None) -> dict:
     from distributed import as_completed
     # the calibrated monitor goes to every worker once; tasks carry only a reference to it
-    params = client.scatter(load("monitor"), broadcast=True)
+    # a key of this batch's own (hash=False): the content-hashed key was the same in every batch,
+    # and a batch right after another on the same client re-scattered it while the first's release
+    # was still deleting it from the workers ("lost dependencies": 7 of 12 successive batches lost
+    # a task; test_successive_batches_on_one_client_lose_no_task)
+    params = client.scatter(load("monitor"), broadcast=True, hash=False)
     t0 = time.perf_counter()
     by_hash = {h: rec for rec, h in todo}
     pending: dict[str, _Pending] = {}
