@@ -295,3 +295,29 @@ def test_successive_batches_on_one_client_lose_no_task(bags, client, tmp_path):
     for i in range(8):
         s = diagnose_fleet([rec], tmp_path / f"h{i}.sqlite", method=METHOD, client=client)
         assert (s["diagnosed"], s["failed"]) == (1, 0), (i, s["failures"])
+
+
+def test_a_manifest_names_the_test_window_of_a_bag_of_several(client, tmp_path, capsys):
+    """A rig log of several tests without history records: the manifest's `test` column names
+    the window of each row; a window the bag lacks fails alone, naming the windows it has."""
+    from eha_health import Faults, load, simulate
+    from eha_health.io.bagrun import write_run
+    from eha_health.io.mcaplog import BagWriter
+    p = load("reference").with_effect_names(["sensor_noise"])
+    bag, db = tmp_path / "rig_log.mcap", tmp_path / "h.sqlite"
+    with BagWriter(bag) as w:
+        for tid, k in ((1, 0.2), (2, 0.5)):
+            write_run(w, simulate(kind="reference", faults=Faults(k_bkl=k), params=p, seed=tid), test_id=tid,
+                      start_ns=tid * 8_000_000_000)
+    (tmp_path / "manifest.csv").write_text("actuator_id,time_h,path,test\nR,10,rig_log.mcap,1\nR,20,rig_log.mcap,2\n"
+                                           "R,30,rig_log.mcap,5\n")
+    s = diagnose_fleet(read_manifest(tmp_path / "manifest.csv"), db, method=METHOD, client=client)
+    assert (s["diagnosed"], s["failed"]) == (2, 1), s
+    assert "test 5: no complete test window 5 (complete: [1, 2])" in s["failures"][0]["reason"]
+    assert [round(r["k_bkl"], 1) for r in _rows(db)] == [0.2, 0.5]
+    assert cli_main(["history", "add", str(bag), "--test", "2", "--actuator", "R", "--history", str(db),
+                     "--time-h", "40", "--quiet"]) == 0
+    assert "already in" in capsys.readouterr().out and len(_rows(db)) == 2
+    (tmp_path / "bad.csv").write_text("actuator_id,time_h,path,test\nR,10,rig_log.mcap,two\n")
+    with pytest.raises(FleetError, match="test 'two' is not a test window id"):
+        read_manifest(tmp_path / "bad.csv")

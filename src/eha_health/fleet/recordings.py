@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..io.bagrun import HISTORY_META, read_run
+from ..io.bagrun import HISTORY_META, read_run, window_ids
 from ..io.mcaplog import bag_metadata
 from ..physics.faults import FAULT_NAMES
 from ..signals.response import Response
@@ -23,7 +23,7 @@ from ..signals.table import csv_rows
 
 #: Columns of a fleet manifest (``truth_*`` and ``noise_seed`` only for simulated fleets).
 MANIFEST_COLUMNS = ("actuator_id", "time_h", "usage", "usage_unit", "path",
-                    "truth_k_gm", "truth_k_fsj", "truth_k_bkl", "noise_seed")
+                    "truth_k_gm", "truth_k_fsj", "truth_k_bkl", "noise_seed", "test")
 #: Columns a manifest must have.
 MANIFEST_REQUIRED = ("actuator_id", "time_h", "path")
 MANIFEST_NAME = "manifest.csv"
@@ -88,9 +88,14 @@ def read_manifest(path: str | Path) -> list[Recording]:
         truth = None
         if all(row.get(f"truth_k_{n[2:]}") not in (None, "") for n in FAULT_NAMES):
             truth = {n: _number(row[f"truth_k_{n[2:]}"], where, f"truth_k_{n[2:]}") for n in FAULT_NAMES}
+        test = None
+        if row.get("test") not in (None, ""):     # a bag of several tests: which window
+            if not str(row["test"]).isdigit():
+                raise FleetError(f"{where}: test {row['test']!r} is not a test window id (an integer >= 0)")
+            test = int(row["test"])
         out.append(Recording(full, row["actuator_id"], _number(row["time_h"], where, "time_h"),
                              _number(row.get("usage"), where, "usage", optional=True),
-                             row.get("usage_unit") or None, truth, where))
+                             row.get("usage_unit") or None, truth, where, window=test))
     if not out:
         raise FleetError(f"{path}: the manifest lists no recordings")
     return out
@@ -129,8 +134,21 @@ def bag_identity(path: Path) -> dict:
 def bag_windows(rec: Recording) -> list[Recording]:
     """A bag of several tests as one recording per test: a monitor log holds a
     :data:`HISTORY_META` record (time, usage) per test it appended to a history. A CSV, a bag
-    with at most one such record, or a recording a manifest identified stays as it is (the
-    manifest's row is the file's first test window)."""
+    with at most one such record, or a recording a manifest identified stays as it is (a
+    manifest row's ``test`` names the window, checked here; without it the row is the file's
+    first window)."""
+    if rec.window is not None:
+        if rec.path.suffix.lower() != ".mcap":
+            raise FleetError("a test window applies to MCAP bags only")
+        try:
+            ids = window_ids(rec.path)
+        except (OSError, ValueError):      # an unreadable bag fails in the batch, saying why
+            return [rec]
+        if rec.window not in ids:
+            raise FleetError(f"no complete test window {rec.window} (complete: {ids or 'none'})")
+        if len(ids) == 1:
+            rec.window = None               # the bag's only test: the file is the recording
+        return [rec]
     if rec.actuator_id is not None or rec.path.suffix.lower() != ".mcap":
         return [rec]
     try:

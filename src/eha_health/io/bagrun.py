@@ -183,6 +183,12 @@ def complete_windows(bag: Bag, topic: str | None) -> dict[int, dict]:
     return {tid: m for tid, m in sorted(marks.items()) if "start" in m and "end" in m}
 
 
+def window_ids(path: str | Path) -> list[int]:
+    """Ids of the complete test windows of the bag at ``path`` (reads only its window marks)."""
+    topic = resolve_topics(read_bag(path, topics=[]).types, path).get(C.TEST_WINDOW.name)
+    return list(complete_windows(read_bag(path, topics=[topic] if topic else []), topic))
+
+
 def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence | None = None,
              namespace: str | None = None, record: bool = False, partial: bool = False) -> Run:
     """The response of one test window of the bag at ``path``.
