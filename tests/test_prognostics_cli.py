@@ -229,3 +229,24 @@ def test_prognose_table_says_what_the_history_checks_did(tmp_path, capsys):
     assert "K fell at 600 h and stayed down" in out and "history repair" in out
     assert "set aside as failed diagnoses (far off their neighbours): tests at 500 h" in out
     assert "the last test is off the trend" in out
+
+
+def test_a_reader_that_stops_early_gets_no_traceback(tmp_path):
+    """`eha-health history list | head`: the pipe closes under a long listing. Before, Python's
+    BrokenPipeError traceback went to the terminal."""
+    import subprocess
+    import sys
+    h = tmp_path / "long.csv"
+    with open(h, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl"])
+        w.writerows(["A", float(i), 0.0, 0.0, 0.0] for i in range(3000))   # ~300 kB of listing: beyond a pipe buffer
+    db = tmp_path / "long.sqlite"
+    assert main(["history", "import", str(h), "--history", str(db)]) == 0
+    p = subprocess.Popen([sys.executable, "-m", "eha_health.cli", "history", "list", "--history", str(db)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    first = p.stdout.readline()
+    p.stdout.close()                      # as `head -1` does
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=300) == 1 and first.startswith(b"%s: 3000 test(s)" % str(db).encode())
+    assert "Traceback" not in err and "BrokenPipe" not in err, err

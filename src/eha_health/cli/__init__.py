@@ -8,6 +8,7 @@ fleet diagnose). Bad input exits with code 2 and one line that says what is wron
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 
 from . import analysis, bench, fleet, graph, model, prognostics
@@ -32,4 +33,10 @@ def main(argv=None) -> int:
     except (UsageError, ValueError, FileNotFoundError) as e:
         print(f"eha-health {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        # the reader stopped early (`history list | head`): nothing of ours failed, so no traceback;
+        # stdout goes to devnull so that the interpreter's flush at exit does not raise again
+        # (the recipe of the Python docs, "Note on SIGPIPE")
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 1
 

@@ -97,10 +97,10 @@ def cmd_history_list(args) -> int:
     for t in rows:
         ks = " ".join(f"{t['k_' + n]:7.4f}+-{t['std_' + n]:.4f}" for n in FAULT_KEYS)
         use = "" if t["usage"] is None else f"{t['usage']:g}"
-        print(f"{t['actuator_id']:12s} {t['time_h']:9.6g} {ks} {use:>8s}  {t['method'] or '':14s} "
+        print(f"{t['actuator_id']:12s} {_fmt_time(t['time_h'])} {ks} {use:>8s}  {t['method'] or '':14s} "
               f"{Path(t['source_path']).name if t['source_path'] else ''}")
     for m in maint:
-        print(f"{m['actuator_id']:12s} {m['time_h']:9.6g} {m['action']} {m['fault']}" +
+        print(f"{m['actuator_id']:12s} {_fmt_time(m['time_h'])} {m['action']} {m['fault']}" +
               (f" ({m['note']})" if m["note"] else ""))
     return 0
 
@@ -124,6 +124,12 @@ def cmd_history_repair(args) -> int:
     print(f"recorded: {args.action} of {args.fault} on {args.actuator} at {args.time_h:g} h "
           f"(its trend restarts there) -> {db}")
     return 0
+
+
+def _fmt_time(t: float) -> str:
+    """A test time [h] for `history list`: 2 decimals from 1 h (epoch-scale hours keep theirs), 4
+    significant digits below (a rig's tests minutes apart)."""
+    return f"{t:9.2f}" if t == 0 or abs(t) >= 1.0 else f"{t:9.4g}"
 
 
 def _fmt_h(v) -> str:
