@@ -205,8 +205,14 @@ def test_diagnosis_appended_once(tmp_path):
         assert st.add_diagnosis(d, "A7", 60.0, source_path=csv) is False
         assert st.add_diagnosis(d, "A7", 60.0, response=r) is True        # no file: hash of the channels
         assert st.add_diagnosis(d, "A7", 90.0, response=r) is False
+        # a live monitor gives the window's stamp: the same samples at another stamp are another
+        # test (a noise-free simulation repeats them: every test after the first starts alike);
+        # at the same stamp, the same test
+        assert st.add_diagnosis(d, "A7", 100.0, response=r, sim_time_s=8.0) is True
+        assert st.add_diagnosis(d, "A7", 110.0, response=r, sim_time_s=12.0) is True
+        assert st.add_diagnosis(d, "A7", 120.0, response=r, sim_time_s=12.0) is False
         rows = st.list_tests("A7")
-    assert len(rows) == 2
+    assert len(rows) == 4
     assert rows[0]["k_gm"] == pytest.approx(d.faults.k_gm) and rows[0]["std_gm"] == pytest.approx(d.std["k_gm"])
     assert rows[0]["method"] == "deterministic" and set(rows[0]["fit_rms"]) == set(d.rms)
     assert json.dumps(rows)   # JSON-ready for `history list --json`

@@ -415,8 +415,8 @@ class HistoryStore:
         """Append one :class:`eha_health` Diagnosis; True if a row was added.
 
         The source hash is that of ``source_path`` (CSV or bag; ``source_window``: the test window
-        of a bag of several, :func:`recording_hash`) if given, else of the ``response`` channels,
-        else of the diagnosis result itself.
+        of a bag of several, :func:`recording_hash`) if given, else of the ``response`` channels
+        and the window stamp ``sim_time_s``, else of the diagnosis result itself.
         """
         k = diagnosis.faults.as_tuple()
         std = tuple(diagnosis.std[f"k_{n}"] for n in FAULT_KEYS)
@@ -428,6 +428,10 @@ class HistoryStore:
             hh = hashlib.sha256()
             for c in ("t", "command", *MEASURED):
                 hh.update(np.ascontiguousarray(getattr(response, c), float).tobytes())
+            if sim_time_s is not None:
+                # where the window lies: two tests of a noise-free simulation can hold the same
+                # samples (every test after the first starts from the same state)
+                hh.update(f"@{float(sim_time_s)!r}".encode())
             h = hh.hexdigest()
         else:
             h = None
