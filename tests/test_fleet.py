@@ -275,6 +275,7 @@ def test_a_monitor_log_of_several_tests_is_one_recording_per_test(client, tmp_pa
                                    source_hash="live-monitor-row")])
     s = diagnose_fleet(find_recordings([bag]), db, method=METHOD, client=client)
     assert (s["diagnosed"], s["skipped"], s["failed"]) == (2, 1, 0), s      # test 1: the same test, not again
+    assert (s["recordings"], s["files"]) == (3, 1)
     rows = _rows(db)
     assert [(r["actuator_id"], r["time_h"], r["usage"]) for r in rows] == [
         ("ACT-9", 100.0, 250.0), ("ACT-9", 200.0, 500.0), ("ACT-9", 300.0, 750.0)]

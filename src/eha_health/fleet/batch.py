@@ -256,12 +256,14 @@ def diagnose_fleet(recordings: list[Recording], history: str | Path, scheduler: 
         raise FleetError(str(e)) from None
     with store:
         todo, skipped = plan(recordings, store, failures)
-        summary = {"recordings": len(recordings), "diagnosed": 0, "skipped": skipped, "failed": failures.count,
+        # a bag of several tests is several recordings: count what the plan saw
+        summary = {"recordings": len(todo) + skipped + failures.count, "files": len({r.path for r in recordings}),
+                   "diagnosed": 0, "skipped": skipped, "failed": failures.count,
                    "method": method, "history": str(history), "failures_file": str(failures.path),
                    "scheduler": scheduler or "LocalCluster", "workers": None, "worker_setup": [],
                    "batch_time_s": 0.0}
         if progress:
-            progress(f"{len(recordings)} recordings: {len(todo)} to diagnose, {skipped} already in the history, "
+            progress(f"{summary['recordings']} recordings: {len(todo)} to diagnose, {skipped} already in the history, "
                      f"{failures.count} failed before diagnosis")
         if todo:
             with contextlib.ExitStack() as stack:
@@ -360,7 +362,8 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
 def format_summary(s: dict) -> str:
     """The end-of-batch lines: done, skipped, failed, throughput."""
     lines = [f"fleet diagnose: {s['diagnosed']} diagnosed and stored, {s['skipped']} skipped (already in the "
-             f"history), {s['failed']} failed, of {s['recordings']} recordings"]
+             f"history), {s['failed']} failed, of {s['recordings']} recordings"
+             + (f" in {s['files']} files" if s.get("files") not in (None, s["recordings"]) else "")]
     if s.get("per_hour"):
         lines.append(f"  throughput {s['per_hour']:,.0f} diagnoses/h ({s['method']}) on {s['workers']} worker(s) "
                      f"of {s['scheduler']}; batch {s['batch_time_s']:.1f} s, total {s['wall_time_s']:.1f} s")
