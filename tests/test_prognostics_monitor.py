@@ -74,8 +74,9 @@ def test_step_appends_prognoses_and_escalates(tmp_path, diagnosis_at_500h):
     v = escalate(HealthPolicy().verdict(1, 0, d), *step.level(out), vals)
     assert v.level == "ERROR" and "P(failure before the next check" in v.message and v.values["dominant_fault"] == "gm"
 
-    # the same window again adds no row; an earlier operating time is refused, the RUL still given
-    again = step.after_diagnosis(d, last + 300.0, response=r)
+    # the same window again (its samples and its stamp, as the monitor gives them) adds no row; an
+    # earlier operating time is refused, the RUL still given
+    again = step.after_diagnosis(d, last + 300.0, sim_time_s=12.5, response=r)
     assert not again.appended and again.error is None and count(db) == 10
     d2 = diagnose(simulate(kind="reference", faults=Faults(k_gm=0.3),
                            params=load("reference").with_effect_names(["sensor_noise"]), seed=6), method="deterministic")
