@@ -183,8 +183,6 @@ def plan(recordings: list[Recording], store: HistoryStore, failures: FailureLog)
     actuator, time and window stamp), fill ids and times from bag metadata; unreadable or
     unidentified files fail here."""
     known = {r[0] for r in store.conn.execute("SELECT source_hash FROM tests")}
-    # tests a monitor appended live (hashed by their channels): known by actuator, time and stamp
-    live = set(store.conn.execute("SELECT actuator_id, time_h, sim_time_s FROM tests WHERE sim_time_s IS NOT NULL"))
     todo, seen, skipped = [], set(), 0
     file_hashes: dict[Path, str] = {}
     windows = []
@@ -210,7 +208,7 @@ def plan(recordings: list[Recording], store: HistoryStore, failures: FailureLog)
         except ValueError as e:
             failures.add(rec, str(e), h)
             continue
-        if rec.sim_time_s is not None and (rec.actuator_id, float(rec.time_h), float(rec.sim_time_s)) in live:
+        if store.holds_test(rec.actuator_id, rec.time_h, rec.sim_time_s):    # appended live by a monitor
             skipped += 1
             continue
         todo.append((rec, h))

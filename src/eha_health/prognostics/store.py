@@ -361,6 +361,14 @@ class HistoryStore:
         return int(self.conn.execute("PRAGMA user_version").fetchone()[0])
 
     # ------------------------------------------------------------------ appends
+    def holds_test(self, actuator_id: str, time_h: float, sim_time_s: float | None) -> bool:
+        """Whether the store has this test by another path: the same actuator, operating time and
+        window stamp (a monitor appends a test live, hashed by its channels; ``history add`` or a
+        batch of the monitor's log brings it again, hashed by the file). No stamp: not known."""
+        return sim_time_s is not None and self.conn.execute(
+            "SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ? AND sim_time_s = ?",
+            (actuator_id, float(time_h), float(sim_time_s))).fetchone() is not None
+
     def _latest(self) -> dict[str, float]:
         return {a: t for a, t in self.conn.execute("SELECT actuator_id, MAX(time_h) FROM tests GROUP BY actuator_id")}
 
@@ -369,9 +377,7 @@ class HistoryStore:
 
         A record whose ``source_hash`` is already stored for the same actuator adds nothing
         (the same recording twice); for another actuator it is an error. So does a record of a test
-        stored by another path: the same actuator, operating time and window stamp ``sim_time_s``
-        (a monitor appends a test live, hashed by its channels; ``history add`` or a batch of the
-        monitor's log brings it again, hashed by the file).
+        the store holds by another path (:meth:`holds_test`).
         """
         wheres = wheres or [f"test {i + 1} (actuator {r.actuator_id}, time_h={r.time_h})"
                             for i, r in enumerate(records)]
@@ -393,9 +399,7 @@ class HistoryStore:
                     raise PrognosticsError(f"{w}: this recording is already in the history for actuator {owner}")
                 if owner is not None or r.source_hash in seen:
                     continue
-                if r.sim_time_s is not None and self.conn.execute(
-                        "SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ? AND sim_time_s = ?",
-                        (r.actuator_id, float(r.time_h), float(r.sim_time_s))).fetchone():
+                if self.holds_test(r.actuator_id, r.time_h, r.sim_time_s):
                     continue
                 seen.add(r.source_hash)
                 new.append((w, r))
