@@ -120,14 +120,19 @@ def bag_identity(path: Path) -> dict:
     tests = [name for name in md if name.startswith(HISTORY_META.format(""))]
     if len(tests) == 1:
         rec.update({k: v for k, v in md[tests[0]].items() if k in ("time_h", "usage", "usage_unit", "sim_time_s")})
+    return _identity_fields(rec, f"{path}: metadata")
+
+
+def _identity_fields(raw: dict, where: str) -> dict:
+    """The identity fields a metadata record holds, numbers checked (:func:`_number`)."""
     out: dict = {}
-    if rec.get("actuator_id"):
-        out["actuator_id"] = rec["actuator_id"]
+    if raw.get("actuator_id"):
+        out["actuator_id"] = raw["actuator_id"]
     for key in ("time_h", "usage", "sim_time_s"):
-        if rec.get(key) not in (None, ""):
-            out[key] = _number(rec[key], f"{path}: metadata", key)
-    if rec.get("usage_unit"):
-        out["usage_unit"] = rec["usage_unit"]
+        if raw.get(key) not in (None, ""):
+            out[key] = _number(raw[key], where, key)
+    if raw.get("usage_unit"):
+        out["usage_unit"] = raw["usage_unit"]
     return out
 
 
@@ -159,15 +164,14 @@ def bag_windows(rec: Recording) -> list[Recording]:
     ids = sorted(int(n[len(prefix):]) for n in md if n.startswith(prefix) and n[len(prefix):].isdigit())
     if len(ids) < 2:
         return [rec]
-    actuator = dict(md.get(META_RECORD, {})).get("actuator_id") or None
+    actuator = dict(md.get(META_RECORD, {})).get("actuator_id")
     out = []
-    for i in ids:
-        meta = md[HISTORY_META.format(i)]
-        where = f"{rec.path}: metadata {HISTORY_META.format(i)}"
-        out.append(Recording(rec.path, actuator, _number(meta.get("time_h"), where, "time_h", optional=True),
-                             _number(meta.get("usage"), where, "usage", optional=True), meta.get("usage_unit") or None,
-                             None, "bag metadata", window=i,
-                             sim_time_s=_number(meta.get("sim_time_s"), where, "sim_time_s", optional=True)))
+    for i in ids:       # each test's time and usage from its record, the actuator from the bag's
+        name = HISTORY_META.format(i)
+        ident = _identity_fields({**md[name], "actuator_id": actuator}, f"{rec.path}: metadata {name}")
+        out.append(Recording(rec.path, ident.get("actuator_id"), ident.get("time_h"), ident.get("usage"),
+                             ident.get("usage_unit"), None, "bag metadata", window=i,
+                             sim_time_s=ident.get("sim_time_s")))
     return out
 
 
