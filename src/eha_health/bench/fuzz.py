@@ -332,6 +332,11 @@ class HistoryTarget:
         sd = [] if std == "none" else [float(f[3]) if std == "stated" else 0.0 for f in faults]
         return [("A1", float(t[i]), *(float(c[i]) for c in cols), *sd) for i in range(n)]
 
+    @staticmethod
+    def header(with_std: bool) -> list[str]:
+        """HISTORY.csv columns of a ``valid`` or ``trend`` case."""
+        return ["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl"] + (["std_gm", "std_fsj", "std_bkl"] if with_std else [])
+
     def check(self, case, tally: Tally) -> None:
         import csv
         import sqlite3
@@ -364,8 +369,7 @@ class HistoryTarget:
                 w.writerow(header)
                 w.writerows(rows)
             else:
-                w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl"]
-                           + (["std_gm", "std_fsj", "std_bkl"] if kind == "trend" and arg[4] != "none" else []))
+                w.writerow(self.header(kind == "trend" and arg[4] != "none"))
                 w.writerows(self.trend_rows(*arg) if kind == "trend" else arg)
         db.write_bytes(self.db_bytes)
         with HistoryStore(db) as s:
@@ -413,8 +417,7 @@ class HistoryTarget:
         n, seed, faults, scale, std = arg
         with path.open("w", newline="") as f:
             w = csv.writer(f)
-            w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl"]
-                       + (["std_gm", "std_fsj", "std_bkl"] if std != "none" else []))
+            w.writerow(self.header(std != "none"))
             w.writerows(self.trend_rows(n, seed, faults, 1.0, std))
         one = self._prognose(path, 50.0 / scale)["actuators"]
         for a, res in obj["actuators"].items():
