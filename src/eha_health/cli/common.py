@@ -89,6 +89,16 @@ def history_option() -> argparse.ArgumentParser:
     return p
 
 
+def monitor_history_option(whose: str) -> argparse.ArgumentParser:
+    """--history / --actuator of a command that runs a monitor node (none by default, unlike the
+    history commands' --history)."""
+    p = _parent()
+    p.add_argument("--history", metavar="DB", help=f"SQLite health history {whose} appends each diagnosis to "
+                                                   "(and publishes the RUL from); none by default")
+    p.add_argument("--actuator", default="eha", help="actuator id of the diagnoses (history, /diagnostics)")
+    return p
+
+
 def params_from(args, kind: str):
     """The parameter set of ``kind`` with --params and --effects (and --noise) applied."""
     p = load(kind, path=getattr(args, "params", None))

@@ -6,8 +6,8 @@ import sys
 from pathlib import Path
 
 from ..physics.faults import FAULT_NAMES, Faults
-from .common import (UsageError, domain_option, effects_option, faults_option, json_flag, method_option, quiet_flag,
-                     seed_option)
+from .common import (UsageError, domain_option, effects_option, faults_option, json_flag, method_option,
+                     monitor_history_option, quiet_flag, seed_option)
 
 
 def truth_table(truth, d) -> list[str]:
@@ -103,22 +103,19 @@ def register(sub) -> None:
     la = sub.add_parser("launch", help="run plant, command and monitor as three processes over DDS",
                         parents=[faults_option("gm=0.4,fsj=0.6,bkl=0.4", None), effects_option(),
                                  seed_option(0, "plant noise seed"), method_option(),
-                                 domain_option("ROS_DOMAIN_ID for the three processes"), json_flag()])
+                                 domain_option("ROS_DOMAIN_ID for the three processes"), json_flag(),
+                                 monitor_history_option("the monitor")])
     la.add_argument("--tests", type=int, default=1, help="number of FDI tests to play")
     la.add_argument("--rate", type=float, default=1.0, help="playback speed (1 real time, 0 as fast as possible)")
     la.add_argument("--log", default="out/launch.mcap", help="MCAP log of the monitor")
     la.add_argument("--timeout", type=float, default=300.0, help="give up after this long [s]")
-    la.add_argument("--history", help="SQLite health history the monitor appends each diagnosis to (and publishes "
-                                      "the RUL from); none by default")
-    la.add_argument("--actuator", default="eha", help="actuator id of the diagnoses (history, /diagnostics)")
     la.set_defaults(func=cmd_launch)
 
     rp = sub.add_parser("replay", help="republish a bag's input topics into a live graph (with a monitor)",
-                        parents=[domain_option("ROS_DOMAIN_ID to publish on"), json_flag()])
+                        parents=[domain_option("ROS_DOMAIN_ID to publish on"), json_flag(),
+                                 monitor_history_option("the replay's monitor")])
     rp.add_argument("bag")
     rp.add_argument("--rate", type=float, default=1.0, help="speed vs the recording (0 as fast as possible)")
     rp.add_argument("--no-monitor", action="store_true", help="only publish (a monitor runs elsewhere)")
     rp.add_argument("--log", default="", help="MCAP log of the replay's monitor")
-    rp.add_argument("--history", help="SQLite health history the replay's monitor appends each diagnosis to")
-    rp.add_argument("--actuator", default="eha", help="actuator id of the diagnoses (history, /diagnostics)")
     rp.set_defaults(func=cmd_replay)
