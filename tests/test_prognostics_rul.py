@@ -357,3 +357,39 @@ def test_a_trend_already_past_its_threshold_says_so(tmp_path):
     gm = prognose(h, thresholds=THR)["actuators"]["P"]["faults"]["gm"]
     assert gm["rul_median_h"] == 0.0 and gm["p_fail_next"] == 1.0
     assert gm["reason"] == f"K {rows[-1]['k_gm']:.3f} at or beyond the threshold {THR['gm']:.3f}: RUL 0"
+
+
+def test_overall_is_never_less_pessimistic_than_a_fault_on_the_fleet_prior(tmp_path):
+    # Young actuators whose faults sit on the fleet prior carry importance weights. Pairing the
+    # faults' samples sample by sample (weight = product of the weights) re-weighted one fault
+    # by the other's prior: the overall came out later than a single fault's RUL, which
+    # first-to-threshold cannot be (here: p05 598 h against bkl's 584 h, P(fail) 0.41 against 0.49).
+    rng = np.random.default_rng(12)
+    rows = []
+    for a in range(8):        # gm and bkl wear alike; the diagnoses scatter 3x their stated error
+        rg, rb = 0.001 * math.exp(0.1 * rng.standard_normal()), 0.00106 * math.exp(0.1 * rng.standard_normal())
+        for i in range(14):
+            t = 50.0 * i
+            rows.append({"actuator_id": f"A{a}", "time_h": t,
+                         "k_gm": max(0.0, rg * max(t - 60, 0) + rng.normal(0, 0.015)), "k_fsj": 0.0,
+                         "k_bkl": max(0.0, rb * max(t - 60, 0) + rng.normal(0, 0.015)),
+                         "std_gm": 0.005, "std_fsj": 0.001, "std_bkl": 0.005})
+    rows += [{**r, "actuator_id": f"Y{j}"} for j in range(4) for r in rows[14 * j:14 * j + 4]]
+    h = tmp_path / "h.csv"
+    with open(h, "w", newline="") as f:
+        w = csv.DictWriter(f, rows[0].keys())
+        w.writeheader()
+        w.writerows(rows)
+    obj = prognose(h, thresholds=THR, next_check_h=100.0)["actuators"]
+    checked = 0
+    for j in range(4):
+        a = obj[f"Y{j}"]
+        faults = [a["faults"][f] for f in ("gm", "bkl")]
+        assert any(f["fleet_prior"] for f in faults)
+        o = a["overall"]
+        for f in faults:
+            for q in ("rul_p05_h", "rul_median_h"):
+                assert o[q] is not None and o[q] <= f[q], (j, q, o[q], f[q])
+            assert o["p_fail_next"] >= f["p_fail_next"], (j, o["p_fail_next"], f["p_fail_next"])
+            checked += 1
+    assert checked == 8

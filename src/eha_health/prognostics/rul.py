@@ -19,9 +19,10 @@ of the RUL [h], each drawing its onset first:
   t~* = g^-1(g_now + dg).
 
 Samples beyond ``horizon_factor`` data spans count as "beyond the horizon" (inf). The
-overall RUL is the first fault to reach its threshold: min over faults, sample by sample
-(faults drawn independently). ``p_fail_next`` = P(RUL <= next_check_h); when the next check
-lies beyond the horizon and samples do too, only its lower bound is known (``p_fail_next_min``).
+overall RUL is the first fault to reach its threshold, faults independent:
+P(R <= t) = 1 - prod_f (1 - F_f(t)) from each fault's weighted samples (:func:`overall`).
+``p_fail_next`` = P(RUL <= next_check_h); when the next check lies beyond the horizon and
+samples do too, only its lower bound is known (``p_fail_next_min``).
 
 Fleet prior: the other actuators with at least ``fleet.min_points`` points since onset
 give lives from onset to threshold L_j = tau_now + median RUL; log L is fitted by a normal
@@ -108,14 +109,6 @@ def _pick(cum: np.ndarray, u: np.ndarray) -> np.ndarray:
     flat = (cum + 2.0 * np.arange(s)[:, None]).ravel()
     idx = np.searchsorted(flat, (u[None, :] + 2.0 * np.arange(s)[:, None]).ravel() * (1 - 1e-12), "left")
     return np.minimum(idx.reshape(s, -1) - k * np.arange(s)[:, None], k - 1)
-
-
-def _chol2(c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cholesky factor (l00, l10, l11) of 2x2 covariances [..., 2, 2] (semi-definite allowed)."""
-    l00 = np.sqrt(np.maximum(c[..., 0, 0], 0.0))
-    l10 = np.divide(c[..., 0, 1], l00, out=np.zeros_like(l00), where=l00 > 0)
-    l11 = np.sqrt(np.maximum(c[..., 1, 1] - l10 * l10, 0.0))
-    return l00, l10, l11
 
 
 def _chol2(c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -322,23 +315,45 @@ def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None) 
     return d
 
 
+def _cdf_on(grid: np.ndarray, x: np.ndarray, w: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted empirical P(X <= T) and P(X < T) of samples ``x`` (inf: never) at ``grid`` T."""
+    order = np.argsort(x)
+    xs = x[order]
+    ws = np.ones_like(xs) if w is None else w[order]
+    cw = np.concatenate([[0.0], np.cumsum(ws)]) / ws.sum()
+    return cw[np.searchsorted(xs, grid, "right")], cw[np.searchsorted(xs, grid, "left")]
+
+
 def overall(preds: dict[str, FaultPrediction], n_tests: int) -> FaultPrediction:
-    """First fault to reach its threshold, sample by sample."""
+    """First fault to reach its threshold, faults independent: P(R <= t) = 1 - prod_f (1 - F_f(t)).
+
+    Computed from each fault's weighted empirical CDF F_f, not by pairing samples: a fault on
+    the fleet prior carries importance weights, and the product of two such weight sets has
+    almost no effective samples (a few draws would set the overall quantiles). The overall
+    "samples" are every finite sample time T of any fault, weighted by the mass of P(R <= T),
+    and inf with the rest: each of its quantiles is at most the same quantile of every fault. ``p_first[f]`` = P(f is first) =
+    sum_T P(R_f = T) prod_(g before f) P(R_g > T) prod_(g after f) P(R_g >= T) (a tie goes to the
+    fault named first).
+    """
     have = {f: p for f, p in preds.items() if p.samples is not None}
     if not have:
         reasons = "; ".join(f"{f}: {p.reason}" for f, p in preds.items())
         return FaultPrediction(None, None, None, n_tests=n_tests, reason=f"no fault has a RUL ({reasons})")
-    S = np.stack([p.samples for p in have.values()])
-    W = np.ones(S.shape[1])
-    for p in have.values():
-        if p.weights is not None:
-            W = W * p.weights
-    first = np.argmin(S, 0)
-    out = FaultPrediction(S.min(0), None if all(p.weights is None for p in have.values()) else W,
+    fin = np.concatenate([p.samples[np.isfinite(p.samples)] for p in have.values()])
+    grid = np.unique(fin)
+    le, lt = zip(*(_cdf_on(grid, p.samples, p.weights) for p in have.values()))
+    le, lt = np.array(le).reshape(len(have), -1), np.array(lt).reshape(len(have), -1)   # [F, T]
+    cdf = 1.0 - np.prod(1.0 - le, 0)
+    beyond = 1.0 - (cdf[-1] if len(cdf) else 0.0)             # no fault within the horizon
+    mass = np.diff(cdf, prepend=0.0)
+    out = FaultPrediction(np.append(grid, np.inf), np.maximum(np.append(mass, beyond), 0.0),
                           "first-to-threshold", n_tests=n_tests)
     out.horizon_h = min(p.horizon_h for p in have.values())
-    wn = W / W.sum()
-    p_first = {f: float(np.sum(wn * (first == i) * np.isfinite(S.min(0)))) for i, f in enumerate(have)}
+    p_first = {}
+    for a, f in enumerate(have):
+        mass = le[a] - lt[a]                                   # P(R_f = T)
+        later = np.prod(1.0 - le[:a], 0) * np.prod(1.0 - lt[a + 1:], 0)
+        p_first[f] = float(np.sum(mass * later))
     out.model_weights = {}
     out.p_first = p_first
     dom = max(p_first, key=p_first.get) if any(p_first.values()) else min(
