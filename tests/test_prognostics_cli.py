@@ -128,7 +128,19 @@ def test_bad_commands_exit_2(db, tmp_path, capsys):
         (["prognose", "--history", str(write_csv(tmp_path / "empty.csv", []))], "empty"),
         (["history", "add", str(tmp_path / "missing.csv"), "--actuator", "A0", "--time-h", "1",
           "--history", str(db)], "no such recording"),
+        (["prognose", "--history", str(tmp_path)], "a directory, not a history"),
+        (["history", "import", str(tmp_path / "d.csv"), "--history", str(db)], "a directory, not a HISTORY.csv"),
+        (["prognose", "--history", str(write_csv(tmp_path / "twice.csv", [["A0", 0, 0.1, 0.2, 0.0, 0.1]],
+                                                 ("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "k_gm")))],
+         "column(s) k_gm appear more than once in the header"),
+        (["prognose", "--history", str(write_csv(tmp_path / "short.csv", [["A0", 0, 0.1, 0, 0, 0.01, 0.01, 0.01],
+                                                                          ["A0", 10, 0.1]]))],
+         "short.csv line 3: 3 value(s) for 8 columns: no k_fsj, k_bkl"),
+        (["prognose", "--history", str(write_csv(tmp_path / "down.csv", [["A0", 0, 0.1, 0, 0, 9.0], ["A0", 10, 0.1, 0, 0, 4.0]],
+                                                 ("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "usage")))],
+         "down.csv line 3: usage falls"),
     ]
+    (tmp_path / "d.csv").mkdir()
     for argv, why in cases:
         code, out, err = run(capsys, argv)
         assert code == 2 and why in err and len(err.strip().splitlines()) == 1, (argv, err)

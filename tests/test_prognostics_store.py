@@ -70,6 +70,8 @@ def test_append_list_and_same_recording_twice(tmp_path):
     ([rec(t=10.0), rec(t=20.0, k=(0.1, 1.6, 0.1))], r"k_fsj=1.6 outside \[0, 1.5\]"),
     ([rec(t=10.0), rec(t=20.0, k=(-0.01, 0.1, 0.1))], "outside"),
     ([rec(t=1.0)], "times out of order"),     # before the latest stored test
+    ([rec(t=10.0, usage=50.0), rec(t=20.0, usage=40.0)], "usage falls: actuator A1 has usage 40 at time_h=20 "
+                                                          "after 50 at time_h=10"),
 ])
 def test_bad_batches_leave_the_store_unchanged(tmp_path, bad, message):
     db = tmp_path / "h.sqlite"
@@ -82,6 +84,24 @@ def test_bad_batches_leave_the_store_unchanged(tmp_path, bad, message):
     assert "\n" not in str(e.value)
     assert isinstance(e.value, ValueError)
     assert snapshot(db) == before
+
+
+def test_usage_rate_is_the_current_units(tmp_path):
+    db = tmp_path / "h.sqlite"
+    with HistoryStore(db) as st:
+        st.add_tests([rec(t=0.0, usage=0.0), rec(t=100.0, usage=180.0)])
+        # a replaced unit counts from zero: its first test is appended before the replacement is
+        # recorded (a repair cannot lie after the latest test), so the store takes the fall
+        st.add_tests([rec(t=200.0, usage=20.0)])
+        assert st.history().actuators["A1"].usage_per_hour() is None    # one test of the new unit
+        st.record_repair("A1", "all", 200.0, action="replace")
+        st.add_tests([rec(t=300.0, usage=200.0)])
+        assert st.history().actuators["A1"].usage_per_hour() == pytest.approx(1.8)   # the new unit only
+    # a usage that does not grow gives no usage RUL (its rate would be 0 or round-off)
+    with HistoryStore(db) as st:
+        st.add_tests([HealthRecord("B", t, (0.1, 0.2, 0.3), (0.001, 0.002, 0.003), usage=5.0)
+                      for t in (0.0, 10.0, 20.0)])
+        assert st.history().actuators["B"].usage_per_hour() is None
 
 
 def test_repair_rules(tmp_path):

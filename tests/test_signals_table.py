@@ -34,10 +34,26 @@ def test_extra_values_name_the_line_and_rows_before_it_were_read(tmp_path):
     assert got == [{"a": "1", "b": "2"}]
 
 
-def test_short_row_gives_none_for_the_missing_cells(tmp_path):
+def test_short_row_gives_none_for_missing_optional_cells(tmp_path):
     p = tmp_path / "t.csv"
     p.write_text("a,b\n1\n")
-    assert list(csv_rows(p, ("a", "b"), TableError)) == [("t.csv line 2", {"a": "1", "b": None})]
+    assert list(csv_rows(p, ("a",), TableError)) == [("t.csv line 2", {"a": "1", "b": None})]
+
+
+def test_a_row_cut_short_before_a_required_column_names_the_line(tmp_path):
+    # a truncated last line used to surface as "b None is not a number" in the caller
+    p = tmp_path / "t.csv"
+    p.write_text("a,b,c\n1,2,3\n4\n")
+    with pytest.raises(TableError, match=r"^t\.csv line 3: 1 value\(s\) for 3 columns: no b$"):
+        list(csv_rows(p, ("a", "b"), TableError))
+
+
+def test_a_name_twice_in_the_header_is_refused(tmp_path):
+    # csv.DictReader keeps the last of two equal names: the first column was dropped silently
+    p = tmp_path / "t.csv"
+    p.write_text("a,b,a\n1,2,3\n")
+    with pytest.raises(TableError, match=r"^.*t\.csv: column\(s\) a appear more than once in the header$"):
+        list(csv_rows(p, ("a", "b"), TableError))
 
 
 def test_a_spreadsheets_byte_order_mark_is_not_part_of_the_first_name(tmp_path):

@@ -20,6 +20,8 @@ from .common import (UsageError, fitness_option, history_option, json_flag, load
 def _db(args, must_exist: bool) -> Path:
     from ..prognostics.store import default_history_path
     path = Path(args.history).expanduser() if args.history else default_history_path()
+    if path.is_dir():
+        raise UsageError(f"{path}: a directory, not a history file")
     if must_exist and not path.is_file():
         raise UsageError(f"{path}: no such history (add tests first: eha-health history add | import)")
     if path.suffix.lower() == ".csv":
@@ -173,6 +175,8 @@ def cmd_prognose(args) -> int:
     from ..prognostics.rul import plot_prognosis, prognose
     from ..prognostics.store import default_history_path
     src = Path(args.history).expanduser() if args.history else default_history_path()
+    if src.is_dir():
+        raise UsageError(f"{src}: a directory, not a history (a SQLite history file or a HISTORY.csv)")
     if not src.is_file():
         raise UsageError(f"{src}: no such history")
     _finite(args.next_check_h, "--next-check-h", minimum=1e-12)

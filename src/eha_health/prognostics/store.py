@@ -198,11 +198,21 @@ class ActuatorHistory:
         return self.time_h >= max(times) if times else np.ones(len(self.time_h), bool)
 
     def usage_per_hour(self) -> float | None:
-        """Usage rate [usage unit / h] from a straight line through the tests with usage, or None."""
+        """Usage rate [usage unit / h] from a straight line through the tests with usage (since the
+        last replacement, or the last fall of the usage count); None
+        where fewer than 2 tests have one or the usage does not grow (no usage RUL to give)."""
         ok = np.isfinite(self.usage)
-        if ok.sum() < 2 or np.ptp(self.time_h[ok]) <= 0:
+        replaced = [t for t, _f, act in self.repairs if act == "replace"]
+        if replaced:              # a new unit counts its usage from its own zero
+            ok &= self.time_h >= max(replaced)
+        idx = np.nonzero(ok)[0]
+        fell = idx[1:][np.diff(self.usage[idx]) < 0]
+        if len(fell):             # ... also where its replacement is not (yet) recorded
+            ok[:fell[-1]] = False
+        if ok.sum() < 2 or np.ptp(self.time_h[ok]) <= 0 or np.ptp(self.usage[ok]) <= 0:
             return None
-        return float(np.polyfit(self.time_h[ok], self.usage[ok], 1)[0])
+        rate = float(np.polyfit(self.time_h[ok], self.usage[ok], 1)[0])
+        return rate if rate > 0 else None
 
 
 @dataclass
@@ -239,6 +249,8 @@ def read_history_csv(path: str | Path, settings: Settings | None = None) -> list
     series about a smooth trend (:func:`noise_estimate`), at least ``history.default_std``."""
     s = settings or load_settings()
     path = Path(path)
+    if path.is_dir():
+        raise PrognosticsError(f"{path}: a directory, not a HISTORY.csv")
     if not path.is_file():
         raise PrognosticsError(f"{path}: no such file")
     recs = []
@@ -278,8 +290,12 @@ def _fill_missing_std(recs: list[HealthRecord], floor: float) -> None:
 
 
 def _check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = None) -> None:
-    """Times must increase strictly per actuator within a batch (and after ``latest``)."""
+    """Times must increase strictly per actuator within a batch (and after ``latest``); usage,
+    a count since new (flight hours or cycles), must not fall within a batch. (Against the
+    store it may: a replaced unit's first test is appended before its replacement is recorded,
+    :meth:`ActuatorHistory.usage_per_hour`.)"""
     last: dict[str, tuple[float, str]] = {}
+    used: dict[str, tuple[float, float, str]] = {}
     for where, r in items:
         prev = last.get(r.actuator_id)
         if prev is None and latest and r.actuator_id in latest:
@@ -293,6 +309,14 @@ def _check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = No
                 raise PrognosticsError(f"{where}: times out of order: actuator {r.actuator_id} test at "
                                        f"time_h={r.time_h:g} comes after one at {t0:g} ({w0})")
         last[r.actuator_id] = (r.time_h, where)
+        if r.usage is None:
+            continue
+        u0 = used.get(r.actuator_id)
+        if u0 is not None and r.usage < u0[0]:
+            raise PrognosticsError(f"{where}: usage falls: actuator {r.actuator_id} has usage {r.usage:g} at "
+                                   f"time_h={r.time_h:g} after {u0[0]:g} at time_h={u0[1]:g} ({u0[2]}); usage "
+                                   f"counts up from new (flight hours or cycles)")
+        used[r.actuator_id] = (r.usage, r.time_h, where)
 
 
 # ----------------------------------------------------------------------------- SQLite store
@@ -528,6 +552,8 @@ def as_history(obj, settings: Settings | None = None) -> History:
     if isinstance(obj, HistoryStore):
         return obj.history()
     path = Path(obj)
+    if path.is_dir():
+        raise PrognosticsError(f"{path}: a directory, not a history (a SQLite history file or a HISTORY.csv)")
     if path.suffix.lower() == ".csv":
         return _history_from_records(read_history_csv(path, settings), [])
     if not path.is_file():
