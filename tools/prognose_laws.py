@@ -36,6 +36,10 @@ LAWS = {
     "saturating": lambda s: -np.expm1(-3.0 * s) / -np.expm1(-3.0),
     "logistic": lambda s: (1 / (1 + np.exp(-(s - 0.6) / 0.12)) - 1 / (1 + np.exp(5.0)))
                           / (1 / (1 + np.exp(-0.4 / 0.12)) - 1 / (1 + np.exp(5.0))),
+    # Paris crack growth da/dN = C a^(m/2), m = 4: a = a0 / (1 - t/t_c), a blow-up in finite time
+    # (here 15 % of the life after the threshold crossing); m = 3 gives the square of it
+    "paris": lambda s: np.expm1(-np.log1p(-np.minimum(s, 1.1499) / 1.15)) / np.expm1(-np.log1p(-1 / 1.15)),
+    "paris2": lambda s: np.expm1(-2 * np.log1p(-np.minimum(s, 1.1499) / 1.15)) / np.expm1(-2 * np.log1p(-1 / 1.15)),
 }
 
 

@@ -9,6 +9,7 @@ heavy tails, failed diagnoses. Per law and error kind, ``--units`` actuators who
 deterministic mean path thr h((t - t_on) / L) (the K_FSJ threshold 0.915, L lognormal, median
 1000 h, sd of log 0.3; onset after 5-25 % of L; a test every 50 h; the history cut at a uniform
 40-80 % of L), plus the error; the true RUL is where the mean path reaches the threshold.
+``--laws flat``: K stays at 0.05 (no wear); what it prints is the false alarms.
 
 Error kinds (sd 0.01 and stated as such unless said):
   white        Gaussian
@@ -33,7 +34,10 @@ from rul_probe import draw_unit, report
 
 THRESHOLD = 0.915
 LAWS = {"linear": lambda s: s, "exponential": lambda s: np.expm1(2.2 * s) / np.expm1(2.2),
-        "power2": lambda s: s ** 2, "sqrt": np.sqrt}
+        "power2": lambda s: s ** 2, "sqrt": np.sqrt,
+        "flat": lambda s: 0.0 * s}    # no wear (K stays at FLAT_K): any RUL is a false alarm
+DEFAULT_LAWS = ("linear", "exponential", "power2", "sqrt")
+FLAT_K = 0.05
 KINDS = ("white", "white_big", "understated", "nostd", "outliers", "hetero", "t3")
 
 
@@ -65,9 +69,9 @@ def fleet(law: str, kind: str, units: int, rng: np.random.Generator) -> tuple[li
     rows, truth = [], {}
     for u in range(units):
         life, onset, t = draw_unit(rng, 50.0)
-        mu = THRESHOLD * h((t - onset) / life)
+        mu = THRESHOLD * h((t - onset) / life) + (FLAT_K if law == "flat" else 0.0)
         e, stated = error(kind, mu, rng)
-        truth[f"U{u}"] = onset + life - t[-1]
+        truth[f"U{u}"] = np.inf if law == "flat" else onset + life - t[-1]
         for ti, yi in zip(t, np.clip(mu + e, 0.0, 1.5)):
             r = {"actuator_id": f"U{u}", "time_h": float(ti), "k_gm": 0.01, "k_fsj": float(yi), "k_bkl": 0.01}
             if stated is not None:
@@ -79,7 +83,7 @@ def fleet(law: str, kind: str, units: int, rng: np.random.Generator) -> tuple[li
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("kinds", nargs="*", metavar="KIND", help="of: " + ", ".join(KINDS) + " (default: all)")
-    ap.add_argument("--laws", default=",".join(LAWS))
+    ap.add_argument("--laws", default=",".join(DEFAULT_LAWS), help="of: " + ", ".join(LAWS))
     ap.add_argument("--units", type=int, default=30)
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--settings", help="prognostics settings YAML merged over data/prognostics.yaml")

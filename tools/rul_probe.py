@@ -27,6 +27,14 @@ def report(label: str, rows: list[dict], truth: dict[str, float], workdir: str |
         w.writerows(rows)
     out = prognose(path, settings=settings)["actuators"]
     got = [(out[u]["faults"]["fsj"], r) for u, r in truth.items()]
+    if all(np.isinf(r) for _, r in got):        # no wear: every RUL given is a false alarm
+        false = [F for F, _ in got if F["rul_p05_h"] is not None]
+        warn = sum((F["p_fail_next"] if F["p_fail_next"] is not None else F.get("p_fail_next_min", 0.0)) >= 0.05
+                   for F in false)
+        low = min((F["rul_p05_h"] for F in false), default=None)
+        print(f"{label} no wear: RUL given {len(false):2d}/{len(got)} (false alarms); P(failure before the "
+              f"next check) >= 5 % {warn:2d}/{len(got)}; lowest p05 {'-' if low is None else f'{low:.0f} h'}", flush=True)
+        return
     given = [(F, r) for F, r in got if F["rul_median_h"] is not None]
     inside = sum((F["rul_p05_h"] or 0.0) <= r <= (F["rul_p95_h"] if F["rul_p95_h"] is not None else np.inf)
                  for F, r in given)

@@ -46,7 +46,7 @@ import numpy as np
 from .config import PrognosticsError, Settings, load_settings
 from .degradation import (ModelFit, Series, akaike_weights, degradation_segment, fit_models,
                           shape_g, shape_g_inv)
-from .scatter import isolated_outliers, last_persistent_fall
+from .scatter import isolated_outliers, last_persistent_fall, noise_estimate
 from .thresholds import FAULTS, threshold_values
 
 CHUNK = 256   # series per sampling chunk (memory ~ CHUNK x samples x 30 floats)
@@ -400,6 +400,13 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
         p.outliers_h = [float(t) for t in time_h[off]]
         time_h, k, std = time_h[~off], k[~off], std[~off]
     anchor = degradation_segment(time_h, k, std, s.prognosis.onset_sigma, s.prognosis.onset_delta)
+    if anchor is not None and anchor >= 4:
+        # the tests before the rise show the diagnosis scatter; where it exceeds the stated errors
+        # (understated), a rise of a few stated sd is noise: judge the onset by the larger one
+        est = noise_estimate(k[:anchor + 1])
+        if est > 1.5 * float(np.median(std[:anchor + 1])):   # beyond what a few points make of a right one
+            anchor = degradation_segment(time_h, k, np.maximum(std, est), s.prognosis.onset_sigma,
+                                         s.prognosis.onset_delta)
     if anchor is None:
         if k[-1] >= threshold:
             p.reason = f"K {k[-1]:.3f} at or beyond the threshold {threshold:.3f} with no trend: RUL 0"
