@@ -19,6 +19,7 @@ Error kinds (sd 0.01 and stated as such unless said):
   outliers     Gaussian, and 8 % of the tests off by 0.1-0.3 either way (failed diagnoses)
   hetero       Gaussian, sd 0.003 + 0.03 K, no std columns
   t3           Student t with 3 degrees of freedom, scale 0.01
+  precise      Gaussian, sd 0.001 (stated): the deterministic path nearly bare
 
 Prints per kind and law: the units given a RUL, the coverage of the 5-95 % interval (a unit
 without a RUL counts as a miss), the share of medians within +-20 % of the truth and the 10/50/90 %
@@ -38,7 +39,7 @@ LAWS = {"linear": lambda s: s, "exponential": lambda s: np.expm1(2.2 * s) / np.e
         "flat": lambda s: 0.0 * s}    # no wear (K stays at FLAT_K): any RUL is a false alarm
 DEFAULT_LAWS = ("linear", "exponential", "power2", "sqrt")
 FLAT_K = 0.05
-KINDS = ("white", "white_big", "understated", "nostd", "outliers", "hetero", "t3")
+KINDS = ("white", "white_big", "understated", "nostd", "outliers", "hetero", "t3", "precise")
 
 
 def error(kind: str, mu: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, float | None]:
@@ -61,6 +62,8 @@ def error(kind: str, mu: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarr
         return rng.normal(0, 1, n) * (0.003 + 0.03 * mu), None
     if kind == "t3":
         return 0.01 * rng.standard_t(3, n), 0.01
+    if kind == "precise":
+        return rng.normal(0, 0.001, n), 0.001
     raise ValueError(kind)
 
 
