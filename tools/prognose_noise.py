@@ -7,9 +7,10 @@
 about 0.001). A user's history may carry worse: larger or understated errors, no std columns,
 heavy tails, failed diagnoses. Per law and error kind, ``--units`` actuators whose K follows a
 deterministic mean path thr h((t - t_on) / L) (the K_FSJ threshold 0.915, L lognormal, median
-1000 h, sd of log 0.3; onset after 5-25 % of L; a test every 50 h; the history cut at a uniform
+1000 h, sd of log 0.3; onset after 5-25 % of L; a test every 50 h (``--interval-h``); the history cut at a uniform
 40-80 % of L), plus the error; the true RUL is where the mean path reaches the threshold.
-``--laws flat``: K stays at 0.05 (no wear); what it prints is the false alarms.
+``--laws flat``: K stays at 0.05 (no wear); what it prints is the false alarms. ``--interval-h``:
+hours between tests (dense histories).
 
 Error kinds (sd 0.01 and stated as such unless said):
   white        Gaussian
@@ -67,11 +68,11 @@ def error(kind: str, mu: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarr
     raise ValueError(kind)
 
 
-def fleet(law: str, kind: str, units: int, rng: np.random.Generator) -> tuple[list[dict], dict]:
+def fleet(law: str, kind: str, units: int, rng: np.random.Generator, interval_h: float = 50.0) -> tuple[list[dict], dict]:
     h = lambda s: LAWS[law](np.clip(s, 0.0, None))    # noqa: E731
     rows, truth = [], {}
     for u in range(units):
-        life, onset, t = draw_unit(rng, 50.0)
+        life, onset, t = draw_unit(rng, interval_h)
         mu = THRESHOLD * h((t - onset) / life) + (FLAT_K if law == "flat" else 0.0)
         e, stated = error(kind, mu, rng)
         truth[f"U{u}"] = np.inf if law == "flat" else onset + life - t[-1]
@@ -89,6 +90,7 @@ def main() -> None:
     ap.add_argument("--laws", default=",".join(DEFAULT_LAWS), help="of: " + ", ".join(LAWS))
     ap.add_argument("--units", type=int, default=30)
     ap.add_argument("--seed", type=int, default=11)
+    ap.add_argument("--interval-h", type=float, default=50.0, help="hours between tests (default 50)")
     ap.add_argument("--settings", help="prognostics settings YAML merged over data/prognostics.yaml")
     a = ap.parse_args()
     laws = a.laws.split(",")
@@ -99,7 +101,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         for kind in a.kinds or KINDS:
             for law in laws:
-                rows, truth = fleet(law, kind, a.units, np.random.default_rng(a.seed))
+                rows, truth = fleet(law, kind, a.units, np.random.default_rng(a.seed), a.interval_h)
                 report(f"{kind:12s} {law:12s}", rows, truth, d, settings)
 
 if __name__ == "__main__":
