@@ -416,3 +416,21 @@ def test_understated_errors_do_not_make_a_flat_fault_wear(tmp_path):
     assert len(given) <= 2, [g["onset_h"] for g in given]
     assert not any(g["p_fail_next"] >= 0.05 for g in given)
     assert sum("no degradation" in (g.get("reason") or "") for g in gm) >= 38
+
+
+def test_an_actuator_on_the_fleet_prior_is_not_its_own_member(tmp_path):
+    # Y has 4 points since onset: a member of the fleet prior at min_points 4 and a receiver
+    # (below use_below_points 6). Its own life must not weigh its own samples twice: its
+    # prior is the others', the same as when it is too young to be a member (min_points 5).
+    h = tmp_path / "h.csv"
+    rows = write_history(h, n_act=6, n_tests=14, seed=4)
+    young = [{**r, "actuator_id": "Y"} for r in rows[:5]]          # 5 tests, 4 points since the anchor
+    write_history(h, n_act=6, n_tests=14, seed=4, extra=young)
+    got = {}
+    for mp in (4, 5):
+        s = load_settings(overrides={"fleet": {"min_points": mp}})
+        obj, det = prognose(h, thresholds=THR, settings=s, details=True)
+        y = obj["actuators"]["Y"]["faults"]["gm"]
+        assert y["fleet_prior"] is True and y["n_points"] == 4
+        got[mp] = (y["rul_p05_h"], y["rul_median_h"], y["rul_p95_h"], y["p_fail_next"])
+    assert got[4] == got[5]

@@ -26,7 +26,8 @@ samples do too, only its lower bound is known (``p_fail_next_min``).
 
 Fleet prior: the other actuators with at least ``fleet.min_points`` points since onset
 give lives from onset to threshold L_j = tau_now + median RUL; log L is fitted by a normal
-(lognormal prior on the life of this fault). An actuator with fewer than
+(lognormal prior on the life of this fault; an actuator that is a member itself gets the prior
+of the others). An actuator with fewer than
 ``fleet.use_below_points`` points since onset has its samples importance-weighted by that
 prior density at tau_now + RUL (Bayes: posterior ~ likelihood x prior); ``fleet_prior``
 says so in the output. With fewer than ``min_tests`` tests since the last repair no RUL
@@ -181,20 +182,33 @@ class FleetPrior:
     mu_log: float
     sd_log: float
     members: int
+    lives: tuple = ()          # (actuator, life [h]) of the members, where known (leave-one-out)
+    min_members: int = 0
 
     def logpdf(self, life_h: np.ndarray) -> np.ndarray:
         with np.errstate(divide="ignore", invalid="ignore"):
             z = (np.log(life_h) - self.mu_log) / self.sd_log
             return np.where(np.isfinite(life_h) & (life_h > 0), -0.5 * z * z - np.log(life_h), -np.inf)
 
+    def excluding(self, actuator: str) -> "FleetPrior | None":
+        """The prior of the other members, for ``actuator`` (its own data must not count twice:
+        once as a member, once as the data the prior weighs)."""
+        if not any(a == actuator for a, _ in self.lives):
+            return self
+        return fleet_prior({a: v for a, v in self.lives if a != actuator}, self.min_members)
+
 
 def fleet_prior(lives_h, min_members: int) -> FleetPrior | None:
-    """Lognormal fitted to members' lives (finite, > 0); None with fewer than ``min_members``."""
-    x = np.asarray([v for v in lives_h if np.isfinite(v) and v > 0], float)
+    """Lognormal fitted to members' lives (finite, > 0; a sequence, or a dict by actuator for
+    :meth:`FleetPrior.excluding`); None with fewer than ``min_members``."""
+    named = tuple((a, float(v)) for a, v in lives_h.items() if np.isfinite(v) and v > 0) if isinstance(
+        lives_h, dict) else ()
+    x = np.asarray([v for _, v in named] if isinstance(lives_h, dict) else
+                   [v for v in lives_h if np.isfinite(v) and v > 0], float)
     if len(x) < min_members:
         return None
     lx = np.log(x)
-    return FleetPrior(float(lx.mean()), max(float(lx.std(ddof=1)), 0.05), len(x))
+    return FleetPrior(float(lx.mean()), max(float(lx.std(ddof=1)), 0.05), len(x), named, min_members)
 
 
 def prior_weights(samples_h: np.ndarray, tau_now_h: np.ndarray, prior: FleetPrior) -> np.ndarray:
@@ -501,10 +515,15 @@ def _predict_prepared(preds: list[FaultPrediction], thresholds: np.ndarray, faul
         p.fits, p.fit_index, p.trend_candidate = fits, int(rows[c]), c
 
 
-def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings) -> None:
-    """Importance-weight the samples of an actuator with few points since onset by the fleet prior."""
+def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings, actuator: str | None = None) -> None:
+    """Importance-weight the samples of an actuator with few points since onset by the fleet prior
+    (of the other members, where ``actuator`` is one)."""
     if prior is None or p.samples is None or p.series is None or p.n_points >= s.fleet.use_below_points:
         return
+    if actuator is not None:
+        prior = prior.excluding(actuator)
+        if prior is None:
+            return
     w = prior_weights(p.samples[None, :], np.array([p.series.tau_h[-1]]), prior)[0]
     ess = w.sum() ** 2 / max(np.sum(w * w), 1e-300) if w.sum() > 0 else 0.0
     if ess >= 50:
@@ -535,9 +554,10 @@ def _predict_fault(hist, ids: list[str], fi: int, thr: float, s: Settings) -> li
     return plist
 
 
-def _prior_of(plist: list[FaultPrediction], s: Settings) -> FleetPrior | None:
+def _prior_of(ids: list[str], plist: list[FaultPrediction], s: Settings) -> FleetPrior | None:
     """Fleet prior from the members with enough points since onset."""
-    lives = [life_estimate(p) for p in plist if p.series is not None and p.n_points >= s.fleet.min_points]
+    lives = {a: life_estimate(p) for a, p in zip(ids, plist)
+             if p.series is not None and p.n_points >= s.fleet.min_points}
     return fleet_prior(lives, s.fleet.min_members)
 
 
@@ -554,7 +574,7 @@ def fleet_priors(history, settings: Settings | None = None,
     hist = as_history(history, s)
     thr = thresholds or threshold_values(s)
     ids = sorted(hist.actuators)
-    return {f: _prior_of(_predict_fault(hist, ids, fi, thr[f], s), s) for fi, f in enumerate(FAULTS)}
+    return {f: _prior_of(ids, _predict_fault(hist, ids, fi, thr[f], s), s) for fi, f in enumerate(FAULTS)}
 
 
 def prognose(history, actuator: str | None = None, next_check_h: float | None = None,
@@ -588,10 +608,10 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
     for fi, f in enumerate(FAULTS):
         plist = _predict_fault(hist, ids, fi, thr[f], s)
         # fleet prior from the members (enough points), applied to the actuators with few points
-        prior = _prior_of(plist, s) if priors is None else priors.get(f)
+        prior = _prior_of(ids, plist, s) if priors is None else priors.get(f)
         for a, p in zip(ids, plist):
             preds[a][f] = p
-            apply_fleet_prior(p, prior, s)
+            apply_fleet_prior(p, prior, s, a)
     out = {}
     detail = {}
     for a in ids:
