@@ -262,3 +262,28 @@ def test_a_reader_that_stops_early_gets_no_traceback(tmp_path):
     err = p.stderr.read().decode()
     assert p.wait(timeout=300) == 1 and first.startswith(b"%s: 3000 test(s)" % str(db).encode())
     assert "Traceback" not in err and "BrokenPipe" not in err, err
+
+
+def test_settings_file_sets_the_requirements_and_the_prognosis(db, tmp_path, capsys):
+    # the parameters YAML a user writes: no requirement set, the default limit K = 0.5
+    y = tmp_path / "mine.yaml"
+    y.write_text("requirements: []\nthresholds: {default: 0.5}\n")
+    code, out, _ = run(capsys, ["thresholds", "--settings", str(y), "--json"])
+    th = json.loads(out)
+    assert code == 0 and {f: (t["k"], t["requirement"]) for f, t in th.items()} == {
+        "gm": (0.5, None), "fsj": (0.5, None), "bkl": (0.5, None)}
+    code, out, _ = run(capsys, ["prognose", "--history", str(db), "--actuator", "A0", "--json", "--settings", str(y)])
+    mine = json.loads(out)["actuators"]["A0"]
+    code, out, _ = run(capsys, ["prognose", "--history", str(db), "--actuator", "A0", "--json"])
+    packaged = json.loads(out)["actuators"]["A0"]
+    assert mine["faults"]["gm"]["threshold"] == 0.5 and packaged["faults"]["gm"]["threshold"] != 0.5
+    # a lower threshold comes sooner
+    assert mine["faults"]["gm"]["rul_median_h"] < packaged["faults"]["gm"]["rul_median_h"]
+    # a settings file that is missing or wrong: one line, exit 2
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("fleet: {min_points: 4, colour: red}\n")
+    for argv, why in [(["thresholds", "--settings", str(tmp_path / "none.yaml")], "no such settings file"),
+                      (["prognose", "--history", str(db), "--settings", str(bad)], "colour"),
+                      (["launch", "--settings", str(y)], "needs --history")]:
+        code, out, err = run(capsys, argv)
+        assert code == 2 and why in err and len(err.strip().splitlines()) == 1, (argv, err)

@@ -6,12 +6,15 @@ import sqlite3
 
 import numpy as np
 import pytest
+import yaml
 
 from eha_health import Faults, diagnose, load, simulate
 from eha_health.monitoring.health import HealthPolicy, escalate
 from eha_health.monitoring.prognosis import PrognosisStep, rul_values
 from eha_health.physics.faults import FAULT_KEYS
+from eha_health.prognostics.config import load_settings
 from eha_health.prognostics.store import HistoryStore
+from eha_health.prognostics.thresholds import threshold_values
 
 RATE = 1.5e-3      # K_GM per hour after onset at 100 h: threshold 0.816 near 640 h
 
@@ -105,7 +108,13 @@ def test_monitor_node_appends_and_publishes_the_rul(tmp_path):
     db = tmp_path / "h.sqlite"
     last = seed_history(db)
     log = tmp_path / "mon.mcap"
-    params = {"history": str(db), "operating_hours": last + 180.0, "next_check_h": 200.0}
+    # the user's parameters YAML: the sine requirement 5 % tighter (the gm threshold comes sooner)
+    mine = tmp_path / "mine.yaml"
+    mine.write_text(yaml.safe_dump({"requirements": [
+        {**r.__dict__, "limit": r.limit * (0.95 if r.name == "sine_peak_error" else 1.0)}
+        for r in load_settings().requirements]}))
+    params = {"history": str(db), "operating_hours": last + 180.0, "next_check_h": 200.0,
+              "prognostics_settings": str(mine)}
     with Graph(faults=Faults(k_gm=gm_at(last + 180.0)), method="deterministic", log_path=log,
                monitor_params=params) as g:
         seen = g.listen(C.DIAGNOSTICS, "independent_listener")   # an independent node reads /diagnostics
@@ -127,6 +136,8 @@ def test_monitor_node_appends_and_publishes_the_rul(tmp_path):
     assert float(kv["k_gm"]) == pytest.approx(gm_at(last + 180.0), abs=0.02)
     rul = json.loads(got[0].data)
     assert rul["actuator_id"] == "eha" and rul["time_h"] == last + 180.0
+    thr = threshold_values(load_settings(mine))["gm"]
+    assert rul["faults"]["gm"]["threshold"] == pytest.approx(thr, abs=1e-4) and thr < threshold_values()["gm"] - 0.005
     assert rul["overall"]["rul_median_h"] == ov["rul_median_h"]
     with HistoryStore(db) as hs:
         row = hs.list_tests("eha")[-1]

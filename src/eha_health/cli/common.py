@@ -89,6 +89,13 @@ def history_option() -> argparse.ArgumentParser:
     return p
 
 
+def prognostics_settings_option() -> argparse.ArgumentParser:
+    p = _parent()
+    p.add_argument("--settings", metavar="YAML", help="prognostics settings merged over data/prognostics.yaml "
+                   "(requirement limits, models, fleet prior: docs/prognostics.md section 6)")
+    return p
+
+
 def monitor_history_option(whose: str) -> argparse.ArgumentParser:
     """--history / --actuator of a command that runs a monitor node (none by default, unlike the
     history commands' --history)."""
@@ -96,6 +103,8 @@ def monitor_history_option(whose: str) -> argparse.ArgumentParser:
     p.add_argument("--history", metavar="DB", help=f"SQLite health history {whose} appends each diagnosis to "
                                                    "(and publishes the RUL from); none by default")
     p.add_argument("--actuator", default="eha", help="actuator id of the diagnoses (history, /diagnostics)")
+    p.add_argument("--settings", metavar="YAML", help="with --history: prognostics settings merged over "
+                   "data/prognostics.yaml (docs/prognostics.md section 6)")
     return p
 
 

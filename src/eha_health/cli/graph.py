@@ -64,12 +64,24 @@ def cmd_record(args) -> int:
     return 0
 
 
+def _prognostics_settings(args):
+    """--settings of a monitor with a --history, checked here (the monitor would refuse it later)."""
+    if not args.settings:
+        return None
+    if not args.history:
+        raise UsageError("--settings is for the prognosis: it needs --history")
+    from ..prognostics.config import load_settings
+    load_settings(args.settings)     # a PrognosticsError (ValueError) names what is wrong
+    return args.settings
+
+
 def cmd_launch(args) -> int:
     from ..ros.launch import launch
     faults = Faults.parse(args.faults)
     res = launch(faults, effects=[e for e in args.effects.split(",") if e], seed=args.seed, tests=args.tests,
                  rate=args.rate, method=args.method, log_path=args.log, domain_id=args.domain_id,
-                 timeout_s=args.timeout, history=args.history, actuator_id=args.actuator)
+                 timeout_s=args.timeout, history=args.history, actuator_id=args.actuator,
+                 prognostics_settings=_prognostics_settings(args))
     print(json.dumps(res, indent=2, default=float) if args.json else res["summary"])
     return 0 if res["ok"] else 1
 
@@ -79,7 +91,8 @@ def cmd_replay(args) -> int:
     if args.history and args.no_monitor:
         raise UsageError("--history needs the replay's monitor (drop --no-monitor)")
     res = replay(args.bag, rate=args.rate, with_monitor=not args.no_monitor, log_path=args.log,
-                 domain_id=args.domain_id, history=args.history, actuator_id=args.actuator)
+                 domain_id=args.domain_id, history=args.history, actuator_id=args.actuator,
+                 prognostics_settings=_prognostics_settings(args))
     print(json.dumps(res, indent=2, default=float) if args.json else res["summary"])
     return 0
 

@@ -14,12 +14,12 @@ import sys
 from pathlib import Path
 
 from ..physics.faults import FAULT_KEYS
-from .common import (UsageError, fitness_option, history_option, json_flag, load_test, method_option, progress,
-                     quiet_flag, seed_option, test_option)
+from .common import (UsageError, fitness_option, history_option, json_flag, load_test, method_option,
+                     prognostics_settings_option, progress, quiet_flag, seed_option, test_option)
 
 def _db(args, must_exist: bool) -> Path:
     from ..prognostics.store import default_history_path
-    path = Path(args.history).expanduser() if args.history else default_history_path()
+    path = Path(args.history).expanduser() if args.history else default_history_path(_settings(args))
     if path.is_dir():
         raise UsageError(f"{path}: a directory, not a history file")
     if must_exist and not path.is_file():
@@ -28,6 +28,15 @@ def _db(args, must_exist: bool) -> Path:
         raise UsageError(f"{path}: --history of this command is a SQLite history, not a HISTORY.csv "
                          "(import it with: eha-health history import FILE.csv)")
     return path
+
+
+def _settings(args):
+    """The prognostics settings of ``--settings`` (merged over data/prognostics.yaml)."""
+    from ..prognostics.config import load_settings
+    path = getattr(args, "settings", None)
+    if path and not Path(path).expanduser().is_file():
+        raise UsageError(f"{path}: no such settings file")
+    return load_settings(Path(path).expanduser() if path else None)
 
 
 def _finite(v: float | None, name: str, minimum: float = 0.0) -> None:
@@ -61,7 +70,7 @@ def cmd_history_add(args) -> int:
     tid, ids = r.meta.get("test_id"), r.meta.get("test_ids") or []
     window = tid if tid is not None and len(ids) > 1 else None
     digest = recording_hash(path, window)
-    with HistoryStore(db) as st:
+    with HistoryStore(db, _settings(args)) as st:
         known = [t for t in st.list_tests() if t["source_hash"] == digest]
         if known:   # before the diagnosis: the same recording twice adds nothing
             t = known[0]
@@ -87,7 +96,7 @@ def cmd_history_add(args) -> int:
 def cmd_history_list(args) -> int:
     from ..prognostics.store import HistoryStore
     db = _db(args, must_exist=True)
-    with HistoryStore(db) as st:
+    with HistoryStore(db, _settings(args)) as st:
         rows = st.list_tests(args.actuator)
         maint = st.list_maintenance(args.actuator)
     if args.json:
@@ -110,7 +119,7 @@ def cmd_history_list(args) -> int:
 def cmd_history_import(args) -> int:
     from ..prognostics.store import HistoryStore
     db = _db(args, must_exist=False)
-    with HistoryStore(db) as st:
+    with HistoryStore(db, _settings(args)) as st:
         n = st.import_csv(args.file)
         total = len(st.list_tests())
     print(f"imported {n} new test(s) from {args.file} into {db} ({total} in all)")
@@ -121,7 +130,7 @@ def cmd_history_repair(args) -> int:
     from ..prognostics.store import HistoryStore
     _finite(args.time_h, "--time-h")
     db = _db(args, must_exist=True)
-    with HistoryStore(db) as st:
+    with HistoryStore(db, _settings(args)) as st:
         st.record_repair(args.actuator, args.fault, args.time_h, action=args.action, note=args.note)
     print(f"recorded: {args.action} of {args.fault} on {args.actuator} at {args.time_h:g} h "
           f"(its trend restarts there) -> {db}")
@@ -174,25 +183,25 @@ def format_prognosis(obj: dict, next_check_h: float) -> str:
 def cmd_prognose(args) -> int:
     from ..prognostics.rul import plot_prognosis, prognose
     from ..prognostics.store import default_history_path
-    src = Path(args.history).expanduser() if args.history else default_history_path()
+    src = Path(args.history).expanduser() if args.history else default_history_path(_settings(args))
     if src.is_dir():
         raise UsageError(f"{src}: a directory, not a history (a SQLite history file or a HISTORY.csv)")
     if not src.is_file():
         raise UsageError(f"{src}: no such history")
     _finite(args.next_check_h, "--next-check-h", minimum=1e-12)
+    s = _settings(args)
     plotted = None
     if args.plot:
-        obj = plot_prognosis(src, args.plot, args.actuator, args.next_check_h)
+        obj = plot_prognosis(src, args.plot, args.actuator, args.next_check_h, settings=s)
         plotted = next(iter(obj["actuators"]))
         if args.actuator is None:   # the plot shows one actuator; the answer is about all of them
-            obj = prognose(src, None, args.next_check_h)
+            obj = prognose(src, None, args.next_check_h, settings=s)
     else:
-        obj = prognose(src, args.actuator, args.next_check_h)
+        obj = prognose(src, args.actuator, args.next_check_h, settings=s)
     if args.json:
         print(json.dumps(obj, default=float))
         return 0
-    from ..prognostics.config import load_settings
-    nc = args.next_check_h if args.next_check_h is not None else load_settings().prognosis.next_check_h
+    nc = args.next_check_h if args.next_check_h is not None else s.prognosis.next_check_h
     print(format_prognosis(obj, nc))
     if args.plot:
         n = len(obj["actuators"])
@@ -202,11 +211,12 @@ def cmd_prognose(args) -> int:
 
 def cmd_thresholds(args) -> int:
     from ..prognostics.thresholds import failure_thresholds
-    th = failure_thresholds()
+    th = failure_thresholds(_settings(args))
     if args.json:
         print(json.dumps({f: t.as_dict() for f, t in th.items()}))
         return 0
-    print("failure thresholds of the reference EHA (data/prognostics.yaml requirements, noise-free FDI sequence):")
+    print(f"failure thresholds of the reference EHA ({args.settings or 'data/prognostics.yaml'} requirements, "
+          "noise-free FDI sequence):")
     for f, t in th.items():
         if t.requirement is None:
             print(f"  K_{f.upper():4s} {t.k:.4f}  (default: no requirement breaks below the search bound)")
@@ -220,7 +230,7 @@ def register(sub) -> None:
     h = sub.add_parser("history", help="the health history: add | list | import | repair")
     hs = h.add_subparsers(dest="history_command", required=True)
     a = hs.add_parser("add", help="diagnose a recorded test (CSV or MCAP) and append it to the history",
-                      parents=[history_option(), test_option("MCAP: test window id"), method_option(),
+                      parents=[history_option(), prognostics_settings_option(), test_option("MCAP: test window id"), method_option(),
                                fitness_option(), seed_option(0, "seed of the identification (GA)"),
                                json_flag("print one JSON object"), quiet_flag()])
     a.add_argument("run", help="RUN.csv (simulate format) or BAG.mcap (docs/interfaces.md contract)")
@@ -231,17 +241,19 @@ def register(sub) -> None:
     a.add_argument("--usage-unit", default=None, help="unit of --usage, e.g. FH or cycles")
     a.set_defaults(func=cmd_history_add)
 
-    ls = hs.add_parser("list", help="the stored tests and maintenance", parents=[history_option(), json_flag()])
+    ls = hs.add_parser("list", help="the stored tests and maintenance",
+                       parents=[history_option(), prognostics_settings_option(), json_flag()])
     ls.add_argument("--actuator", help="one actuator only")
     ls.set_defaults(func=cmd_history_list)
 
     im = hs.add_parser("import", help="append the rows of a HISTORY.csv (actuator_id, time_h, k_gm, k_fsj, "
-                                      "k_bkl [, std_gm, std_fsj, std_bkl, usage])", parents=[history_option()])
+                                      "k_bkl [, std_gm, std_fsj, std_bkl, usage])",
+                        parents=[history_option(), prognostics_settings_option()])
     im.add_argument("file", help="HISTORY.csv")
     im.set_defaults(func=cmd_history_import)
 
     rp = hs.add_parser("repair", help="record a repair or replacement: that fault's trend restarts",
-                       parents=[history_option()])
+                       parents=[history_option(), prognostics_settings_option()])
     rp.add_argument("--actuator", required=True)
     rp.add_argument("--fault", required=True, choices=(*FAULT_KEYS, "all"))
     rp.add_argument("--time-h", type=float, required=True, help="operating hours of the repair")
@@ -250,7 +262,8 @@ def register(sub) -> None:
     rp.set_defaults(func=cmd_history_repair)
 
     p = sub.add_parser("prognose", help="remaining useful life per fault and overall, with its interval",
-                       parents=[history_option(), json_flag("one object: {actuators: {ID: {faults, overall}}}")])
+                       parents=[history_option(), prognostics_settings_option(),
+                                json_flag("one object: {actuators: {ID: {faults, overall}}}")])
     p.add_argument("--actuator", help="one actuator (default: all)")
     p.add_argument("--next-check-h", type=float, help="hours to the next check (p_fail_next; default "
                                                       "prognosis.next_check_h of data/prognostics.yaml)")
@@ -260,5 +273,5 @@ def register(sub) -> None:
     p.epilog = "--history also takes a HISTORY.csv"
 
     t = sub.add_parser("thresholds", help="failure thresholds from the physics (requirements of data/prognostics.yaml)",
-                       parents=[json_flag()])
+                       parents=[prognostics_settings_option(), json_flag()])
     t.set_defaults(func=cmd_thresholds)

@@ -47,12 +47,13 @@ def _stop(procs: list[subprocess.Popen], grace_s: float = 10.0) -> None:
 def launch(faults: Faults = Faults(), effects=(), seed: int = 0, tests: int = 1, rate: float = 1.0,
            method: str = DEFAULT_METHOD, log_path: str | Path = "out/launch.mcap", domain_id: int | None = None,
            timeout_s: float = 300.0, namespace: str = "", history: str | Path | None = None,
-           actuator_id: str = "eha") -> dict:
+           actuator_id: str = "eha", prognostics_settings: str | Path | None = None) -> dict:
     """Run plant, command and monitor as three OS processes over DDS until ``tests`` are diagnosed.
 
     The children inherit the environment (the ROS wheels need it); ``domain_id``
     isolates them from other graphs on the machine. ``history``: the monitor appends each
-    diagnosis of ``actuator_id`` to this SQLite health history and publishes its RUL.
+    diagnosis of ``actuator_id`` to this SQLite health history and publishes its RUL
+    (``prognostics_settings``: a YAML merged over data/prognostics.yaml for it).
     """
     if tests < 1:
         raise ValueError(f"tests must be >= 1, got {tests}")
@@ -72,7 +73,9 @@ def launch(faults: Faults = Faults(), effects=(), seed: int = 0, tests: int = 1,
     cmds = {
         "monitor": {"exit_after": tests, "log_path": str(log_path), "plant_node": plant_fqn, "method": method,
                     "request_tests": tests, "actuator_id": str(actuator_id),
-                    **({"history": str(Path(history).resolve())} if history else {})},
+                    **({"history": str(Path(history).resolve())} if history else {}),
+                    **({"prognostics_settings": str(Path(prognostics_settings).resolve())}
+                       if prognostics_settings else {})},
         "plant": {"k_gm": float(faults.k_gm), "k_fsj": float(faults.k_fsj), "k_bkl": float(faults.k_bkl),
                   "seed": int(seed), **({"effects": list(effects)} if effects else {})},
         "command": {"max_tests": tests, "rate": float(rate)},

@@ -49,6 +49,7 @@ from ..monitoring.health import HealthPolicy, Verdict, escalate
 from ..monitoring.prognosis import PrognosisStep, rul_values
 from ..monitoring.windows import WindowTracker
 from ..physics.faults import FAULT_NAMES, FAULT_UPPER
+from ..prognostics.config import load_settings
 from . import msg_class, qos, run_node
 from .params import INT_MAX, Param, declare
 
@@ -87,6 +88,8 @@ PARAMS = (
     Param("best_effort", False, "subscribe to the inputs BEST_EFFORT (a lossy link; matches both kinds of "
           "publisher) instead of RELIABLE"),
     Param("history", "", "SQLite health history: each diagnosis is appended and the RUL published ('' = none)"),
+    Param("prognostics_settings", "", "YAML merged over data/prognostics.yaml for the prognosis (requirement "
+          "limits, models, fleet prior; '' = the packaged settings)"),
     Param("operating_hours", -1.0, "operating hours of the next test in the history [h]; < 0: the window's start "
           "stamp (ROS / simulated time) in hours", -1.0, 1e7),
     Param("usage", -1.0, "usage at the next test (flight hours or cycles; < 0: none)", -1.0, 1e9),
@@ -157,8 +160,10 @@ class MonitorNode(Node):
         def opt(name):
             v = float(self.get_parameter(name).value)
             return None if v < 0 else v
+        extra = self.get_parameter("prognostics_settings").value
+        settings = load_settings(extra) if extra else load_settings()
         step = PrognosisStep(path, self.get_parameter("actuator_id").value, opt("next_check_h"), opt("warn_p_fail"),
-                             opt("error_p_fail"))   # PrognosticsError (ValueError) names a bad parameter
+                             opt("error_p_fail"), settings)   # PrognosticsError (ValueError) names a bad parameter
         self.get_logger().info(f"health history {path}: diagnoses appended, RUL on {C.RUL.name}")
         return step
 

@@ -120,10 +120,11 @@ class ReplayNode(Node):
 def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_path: str | Path = "",
            domain_id: int | None = None, method: str = DEFAULT_METHOD, timeout_s: float = 600.0,
            wait_for_subscribers_s: float = 10.0, history: str | Path | None = None,
-           actuator_id: str = "eha") -> dict:
+           actuator_id: str = "eha", prognostics_settings: str | Path | None = None) -> dict:
     """Republish ``bag`` into the graph; with ``with_monitor`` also diagnose it here, and with a
     ``history`` append each diagnosis of ``actuator_id`` to it (operating time: the window's
-    start stamp in hours, as the monitor does) and publish the RUL.
+    start stamp in hours, as the monitor does) and publish the RUL (``prognostics_settings``: a
+    YAML merged over data/prognostics.yaml for it).
 
     Publishing starts once a subscriber takes the commands and the marks, or after
     ``wait_for_subscribers_s`` (a monitor process that is still starting on a busy machine
@@ -146,6 +147,8 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
         if with_monitor:
             prog = [Parameter("history", value=str(Path(history).resolve())),
                     Parameter("actuator_id", value=str(actuator_id))] if history else []
+            if history and prognostics_settings:
+                prog.append(Parameter("prognostics_settings", value=str(Path(prognostics_settings).resolve())))
             mon = MonitorNode(context=ctx, parameter_overrides=[Parameter("log_path", value=str(log_path)),
                                                                  Parameter("method", value=method),
                                                                  Parameter("keep_verdicts", value=0),   # returns all
