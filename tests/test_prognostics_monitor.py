@@ -187,3 +187,24 @@ def test_a_lower_bound_on_p_fail_escalates_and_is_published(tmp_path):
     assert level == "ERROR" and ">= 0.300" in why
     kv = rul_values(out)
     assert kv["p_fail_next"] == "none" and kv["p_fail_next_min"] == 0.3 and kv["p_fail_next_min_gm"] == 0.3
+
+
+def test_a_warning_from_one_test_off_its_trend_says_to_test_again(tmp_path):
+    # a flat gm, then one test 0.25 up: a failed diagnosis or wear that jumped. The prognosis mixes
+    # both futures, so the warning is half a single test's doing: the status says to test again.
+    from eha_health.monitoring.prognosis import Outcome
+    from eha_health.prognostics.rul import prognose
+    rng = np.random.default_rng(2)
+    p = tmp_path / "h.csv"
+    with open(p, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+        for i in range(12):
+            w.writerow(["eha", 50.0 * i, 0.05 + rng.normal(0, 0.004) + (0.25 if i == 11 else 0.0), 0, 0,
+                        0.004, 0.004, 0.004])
+    prog = prognose(p, "eha", next_check_h=200.0)["actuators"]["eha"]
+    assert prog["faults"]["gm"].get("last_test_off_trend") is True
+    step = PrognosisStep(tmp_path / "unused.sqlite", "eha", next_check_h=200.0, warn_p_fail=0.05, error_p_fail=0.9)
+    level, why = step.level(Outcome(True, prog))
+    assert level == "WARN", (level, prog["overall"])
+    assert "the last gm test is off its trend" in why and "test again" in why

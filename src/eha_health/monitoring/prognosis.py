@@ -110,6 +110,10 @@ class PrognosisStep:
             return "OK", None
         why = (f"P(failure before the next check in {self.next_check_h:g} h) {rel} {p:.3f}"
                f" (dominant {ov.get('dominant_fault')}, RUL median {_h(ov.get('rul_median_h'))})")
+        off = [f for f, F in (outcome.prognosis or {}).get("faults", {}).items() if F.get("last_test_off_trend")]
+        if off:   # half of that probability is a single test: what to do next is to test again
+            why += (f"; the last {'/'.join(off)} test is off its trend (a failed diagnosis, or wear that "
+                    f"jumped): test again")
         if p >= self.error_p_fail:
             return "ERROR", f"{why} >= {self.error_p_fail:g}"
         if p >= self.warn_p_fail:
