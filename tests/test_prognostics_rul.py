@@ -434,3 +434,19 @@ def test_an_actuator_on_the_fleet_prior_is_not_its_own_member(tmp_path):
         assert y["fleet_prior"] is True and y["n_points"] == 4
         got[mp] = (y["rul_p05_h"], y["rul_median_h"], y["rul_p95_h"], y["p_fail_next"])
     assert got[4] == got[5]
+
+
+def test_overall_p_fail_is_exact_where_every_fault_fails_within_its_horizon():
+    # the first-to-threshold distribution carries an atom at infinity only where some mass lies
+    # beyond the horizon; with none, P(failure before a check past the horizon) is known (1 here),
+    # not a lower bound
+    from eha_health.prognostics.rul import FaultPrediction, overall, summary
+    rng = np.random.default_rng(0)
+    preds = {f: FaultPrediction(rng.lognormal(3.0, 0.3, 2000), None) for f in ("gm", "fsj", "bkl")}
+    for p in preds.values():
+        p.horizon_h = 40.0
+    o = summary(overall(preds, 10), 100.0, None)
+    assert o["p_fail_next"] == 1.0 and "p_fail_next_min" not in o
+    preds["bkl"].samples[:200] = np.inf          # 10 % of bkl beyond its horizon: the others still fail first
+    o = summary(overall(preds, 10), 100.0, None)
+    assert o["p_fail_next"] == 1.0 and o["rul_p95_h"] is not None

@@ -360,8 +360,9 @@ def overall(preds: dict[str, FaultPrediction], n_tests: int) -> FaultPrediction:
     cdf = 1.0 - np.prod(1.0 - le, 0)
     beyond = 1.0 - (cdf[-1] if len(cdf) else 0.0)             # no fault within the horizon
     mass = np.diff(cdf, prepend=0.0)
-    out = FaultPrediction(np.append(grid, np.inf), np.maximum(np.append(mass, beyond), 0.0),
-                          "first-to-threshold", n_tests=n_tests)
+    if beyond > 1e-12 or not len(grid):   # an atom at inf only where some mass lies beyond the horizon
+        grid, mass = np.append(grid, np.inf), np.append(mass, beyond)
+    out = FaultPrediction(grid, np.maximum(mass, 0.0), "first-to-threshold", n_tests=n_tests)
     out.horizon_h = min(p.horizon_h for p in have.values())
     p_first = {}
     for a, f in enumerate(have):
