@@ -236,3 +236,37 @@ def test_diagnosis_appended_once(tmp_path):
     assert rows[0]["k_gm"] == pytest.approx(d.faults.k_gm) and rows[0]["std_gm"] == pytest.approx(d.std["k_gm"])
     assert rows[0]["method"] == "deterministic" and set(rows[0]["fit_rms"]) == set(d.rms)
     assert json.dumps(rows)   # JSON-ready for `history list --json`
+
+
+def test_a_refused_or_only_read_file_is_left_byte_for_byte(tmp_path):
+    from eha_health.prognostics.rul import prognose
+    other = tmp_path / "other.sqlite"
+    con = sqlite3.connect(other)
+    con.execute("CREATE TABLE foo (x)")
+    con.execute("INSERT INTO foo VALUES (1)")
+    con.commit()
+    con.close()
+    before = other.read_bytes()
+    for opener in (lambda: HistoryStore(other), lambda: HistoryStore(other, readonly=True), lambda: prognose(other)):
+        with pytest.raises(PrognosticsError, match="not a history"):
+            opener()
+        assert other.read_bytes() == before          # was switched to WAL before it was refused
+    zero = tmp_path / "zero.sqlite"
+    zero.write_bytes(b"")
+    with pytest.raises(PrognosticsError, match="the history is empty"):
+        prognose(zero)
+    with HistoryStore(zero, readonly=True) as st:
+        assert st.list_tests() == [] and st.actuator_ids() == []
+        with pytest.raises(PrognosticsError, match="read-only"):
+            st.add_tests([rec(t=1.0)])
+    assert zero.read_bytes() == b""                   # a read wrote the whole schema into it
+    # a real store read while it holds tests: the same answer, and nothing written
+    db = tmp_path / "h.sqlite"
+    with HistoryStore(db) as st:
+        st.add_tests([rec(t=0.0), rec(t=10.0)])
+    snap = snapshot(db)
+    with HistoryStore(db, readonly=True) as st:
+        assert [r["time_h"] for r in st.list_tests("A1")] == [0.0, 10.0]
+        with pytest.raises(PrognosticsError, match="read-only"):
+            st.record_repair("A1", "gm", 10.0)
+    assert snapshot(db) == snap

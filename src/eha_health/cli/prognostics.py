@@ -96,7 +96,7 @@ def cmd_history_add(args) -> int:
 def cmd_history_list(args) -> int:
     from ..prognostics.store import HistoryStore
     db = _db(args, must_exist=True)
-    with HistoryStore(db, _settings(args)) as st:
+    with HistoryStore(db, _settings(args), readonly=True) as st:
         rows = st.list_tests(args.actuator)
         maint = st.list_maintenance(args.actuator)
     if args.json:

@@ -323,10 +323,14 @@ def _check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = No
 class HistoryStore:
     """The SQLite health history (created on first use). Use as a context manager."""
 
-    def __init__(self, path: str | Path | None = None, settings: Settings | None = None):
+    def __init__(self, path: str | Path | None = None, settings: Settings | None = None, readonly: bool = False):
+        """``readonly``: read what is there and write nothing -- no schema into an empty file, no
+        switch to WAL (a file refused, or only read, stays byte for byte as it was)."""
         self.settings = settings or load_settings()
         self.path = Path(path) if path is not None else default_history_path(self.settings)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.readonly = readonly
+        if not readonly:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
             self.conn = sqlite3.connect(str(self.path), timeout=60.0, isolation_level=None)
             # text the store did not write (a damaged page) must not raise mid-query
@@ -342,14 +346,22 @@ class HistoryStore:
             self.conn.close()
             raise PrognosticsError(f"{self.path}: history schema version {ver} is newer than this software's "
                                    f"({SCHEMA_VERSION})")
-        self.conn.execute("PRAGMA journal_mode=WAL")
-        self.conn.execute("PRAGMA synchronous=FULL")
-        self.conn.execute("PRAGMA foreign_keys=ON")
+        self.empty = False
         if ver == 0:
+            # judged before anything is written: a foreign file is refused as it was
             tables = {r[0] for r in self.conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
             if tables - {"schema_version", "tests", "maintenance"}:
                 self.conn.close()
                 raise PrognosticsError(f"{self.path}: an SQLite file that is not a history (tables {sorted(tables)})")
+        if readonly:
+            self.empty = ver == 0          # an empty file (or one whose creation never committed): no tests
+            if not self.empty:
+                self._check_columns()
+            return
+        self.conn.execute("PRAGMA journal_mode=WAL")
+        self.conn.execute("PRAGMA synchronous=FULL")
+        self.conn.execute("PRAGMA foreign_keys=ON")
+        if ver == 0:
             self.conn.execute("BEGIN IMMEDIATE")
             try:
                 for stmt in filter(str.strip, _SCHEMA.split(";")):
@@ -360,16 +372,20 @@ class HistoryStore:
             except BaseException:
                 self.conn.execute("ROLLBACK")
                 raise
-        else:   # a damaged schema can parse and pass the integrity check yet miss a column (fuzzing found it)
-            want = {"tests": ("id",) + TEST_COLUMNS, "schema_version": ("version", "applied_utc"),
-                    "maintenance": ("id", "actuator_id", "time_h", "fault", "action", "wall_time_utc", "note")}
-            for table, cols in want.items():
-                have = {r[1] for r in self.conn.execute(f"PRAGMA table_info({table})")}
-                lost = [c for c in cols if c not in have]
-                if lost:
-                    self.conn.close()
-                    raise PrognosticsError(f"{self.path}: not a history database (table {table} lacks "
-                                           f"{', '.join(lost)})")
+        else:
+            self._check_columns()
+
+    def _check_columns(self) -> None:
+        """A damaged schema can parse and pass the integrity check yet miss a column (fuzzing found it)."""
+        want = {"tests": ("id",) + TEST_COLUMNS, "schema_version": ("version", "applied_utc"),
+                "maintenance": ("id", "actuator_id", "time_h", "fault", "action", "wall_time_utc", "note")}
+        for table, cols in want.items():
+            have = {r[1] for r in self.conn.execute(f"PRAGMA table_info({table})")}
+            lost = [c for c in cols if c not in have]
+            if lost:
+                self.conn.close()
+                raise PrognosticsError(f"{self.path}: not a history database (table {table} lacks "
+                                       f"{', '.join(lost)})")
 
     def close(self) -> None:
         self.conn.close()
@@ -393,6 +409,10 @@ class HistoryStore:
             "SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ? AND sim_time_s = ?",
             (actuator_id, float(time_h), float(sim_time_s))).fetchone() is not None
 
+    def _writable(self) -> None:
+        if self.readonly:
+            raise PrognosticsError(f"{self.path}: opened read-only; nothing written")
+
     def _latest(self) -> dict[str, float]:
         return {a: t for a, t in self.conn.execute("SELECT actuator_id, MAX(time_h) FROM tests GROUP BY actuator_id")}
 
@@ -403,6 +423,7 @@ class HistoryStore:
         (the same recording twice); for another actuator it is an error. So does a record of a test
         the store holds by another path (:meth:`holds_test`).
         """
+        self._writable()
         wheres = wheres or [f"test {i + 1} (actuator {r.actuator_id}, time_h={r.time_h})"
                             for i, r in enumerate(records)]
         for w, r in zip(wheres, records):
@@ -477,6 +498,7 @@ class HistoryStore:
     def record_repair(self, actuator_id: str, fault: str, time_h: float, action: str = "repair",
                       note: str | None = None) -> None:
         """Record a repair or replacement of one fault's part (or ``all``): its trend restarts."""
+        self._writable()
         fault = str(fault).lower().removeprefix("k_")
         if fault not in MAINT_FAULTS:
             raise PrognosticsError(f"unknown fault {fault!r}: choose gm, fsj, bkl or all")
@@ -505,6 +527,8 @@ class HistoryStore:
 
     # ------------------------------------------------------------------ reads
     def actuator_ids(self) -> list[str]:
+        if self.empty:
+            return []
         return [r[0] for r in self.conn.execute("SELECT DISTINCT actuator_id FROM tests ORDER BY actuator_id")]
 
     def _require(self, actuator_id: str | None) -> None:
@@ -514,6 +538,8 @@ class HistoryStore:
     def list_tests(self, actuator_id: str | None = None) -> list[dict]:
         """Stored tests (dicts with the schema's columns), by actuator and time."""
         self._require(actuator_id)
+        if self.empty:
+            return []
         q = f"SELECT id, {','.join(TEST_COLUMNS)} FROM tests"
         args: tuple = ()
         if actuator_id is not None:
@@ -529,6 +555,8 @@ class HistoryStore:
 
     def list_maintenance(self, actuator_id: str | None = None) -> list[dict]:
         self._require(actuator_id)
+        if self.empty:
+            return []
         q = "SELECT actuator_id, time_h, fault, action, wall_time_utc, note FROM maintenance"
         args: tuple = ()
         if actuator_id is not None:
@@ -538,6 +566,8 @@ class HistoryStore:
 
     def history(self) -> History:
         """All tests and maintenance as arrays for the prognostics."""
+        if self.empty:
+            return History()
         q = f"SELECT actuator_id, time_h, {','.join(K_COLUMNS + STD_COLUMNS)}, usage FROM tests"
         recs = [HealthRecord(a, t, (g, f, b), (sg, sf, sb), usage=u) for a, t, g, f, b, sg, sf, sb, u in
                 self.conn.execute(q)]
@@ -558,7 +588,7 @@ def as_history(obj, settings: Settings | None = None) -> History:
         return _history_from_records(read_history_csv(path, settings), [])
     if not path.is_file():
         raise PrognosticsError(f"{path}: no such history file")
-    with HistoryStore(path, settings) as st:
+    with HistoryStore(path, settings, readonly=True) as st:
         return st.history()
 
 
@@ -579,5 +609,5 @@ def record_repair(db: str | Path | None, actuator_id: str, fault: str, time_h: f
 
 
 def list_tests(db: str | Path | None, actuator_id: str | None = None) -> list[dict]:
-    with HistoryStore(db) as st:
+    with HistoryStore(db, readonly=True) as st:
         return st.list_tests(actuator_id)
