@@ -52,12 +52,12 @@ def test_the_last_test_is_never_set_aside_only_reported():
     assert not isolated_outliers(t, k, np.full(12, 0.005), 0.0, 0.02)[0].any()   # sigma 0: off
 
 
-def _write(path, t, k):
+def _write(path, t, k, std=0.005):
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
         for ti, ki in zip(t, k):
-            w.writerow(["A", ti, ki, 0.0, 0.0, 0.005, 0.001, 0.001])
+            w.writerow(["A", ti, ki, 0.0, 0.0, std, 0.001, 0.001])
 
 
 def test_prognose_names_the_tests_set_aside_and_ignores_them(tmp_path):
@@ -96,6 +96,23 @@ def test_a_last_test_off_the_trend_gives_both_futures(tmp_path):
     assert with_it["rul_median_h"] < without["rul_median_h"] - 50.0
     assert got["rul_p05_h"] <= with_it["rul_median_h"] and got["rul_p95_h"] >= without["rul_median_h"] - 50.0
     assert with_it["rul_median_h"] <= got["rul_median_h"] <= without["rul_median_h"] + 50.0
+
+
+def test_a_jump_that_the_next_tests_confirm_is_wear_and_a_lone_one_on_a_flat_fault_is_half_a_failure(tmp_path):
+    # gm flat at 0.10, then 0.78 from a test on (an independent probe's case): two or more tests up
+    # were read as a failed diagnosis set aside plus a last test off the trend; one test up on a
+    # flat history lost the future without it (P(failure) 0.99 instead of an even mixture)
+    t = np.arange(20) * 50.0
+    for up in (2, 3, 4):
+        k = np.where(np.arange(20) >= 20 - up, 0.78, 0.10) + np.random.default_rng(4).normal(0, 0.003, 20)
+        off, last = flag(t, k, 0.003)
+        assert not off.any() and not last, up
+    k = np.where(np.arange(20) >= 19, 0.78, 0.10) + np.random.default_rng(4).normal(0, 0.003, 20)
+    p = tmp_path / "jump.csv"
+    _write(p, t, k, std=0.003)
+    got = prognose(p, thresholds=THR, next_check_h=50.0)["actuators"]["A"]["faults"]["gm"]
+    assert got["last_test_off_trend"] is True
+    assert 0.4 <= got["p_fail_next"] <= 0.6 and got["rul_p95_h"] is None     # half: no failure ahead
 
 
 def _repaired(seed=0):

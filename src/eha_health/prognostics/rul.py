@@ -235,6 +235,7 @@ class FaultPrediction:
     fleet_prior: bool = False
     unrecorded_repair_h: float | None = None          # K fell and stayed down here: the trend restarts [h]
     outliers_h: list = field(default_factory=list)   # tests set aside (scatter.isolated_outliers) [h]
+    no_trend: bool = False                            # no degradation since the repair: no failure ahead
     last_off_trend: bool = False                      # the last test is off the trend (unconfirmed) ...
     without_last: "FaultPrediction | None" = None     # ... and the prediction without it
     reason: str | None = None
@@ -429,6 +430,7 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
             return p, None
         p.reason = (f"no degradation since the last repair: K {k[-1]:.4f} +- {p.std_last:.4f} "
                     f"(threshold {threshold:.3f}), no trend to extrapolate")
+        p.no_trend = True
         return p, None
     p.onset_h = float(time_h[anchor])
     p.n_points = len(k) - anchor
@@ -467,9 +469,12 @@ def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_i
     u_last = Draws.make(s.prognosis.seed, fault_index, s.prognosis.samples).u_last
     for i, a in alts:
         p = preds[i]
-        if p.samples is not None and a.samples is not None and len(p.samples) == len(a.samples) == len(u_last):
+        without = a.samples
+        if without is None and a.no_trend and p.samples is not None:
+            without = np.full(len(p.samples), np.inf)     # without the last test, no wear: no failure ahead
+        if p.samples is not None and without is not None and len(p.samples) == len(without) == len(u_last):
             # an even mixture: with the last test (wear jumped) or without it (a failed diagnosis)
-            p.samples = np.where(u_last < 0.5, a.samples, p.samples)
+            p.samples = np.where(u_last < 0.5, without, p.samples)
             p.horizon_h = min(p.horizon_h, a.horizon_h)
 
 

@@ -12,9 +12,11 @@ to the trend:
   the ends: also its distance from a robust line through the 4 nearest other tests) exceeds
   ``sigma`` scatter sd (the larger of :func:`noise_estimate` and the test's stated standard
   error) and ``min_jump``. A level shift -- wear that jumped and stays -- moves the running
-  median with it and is not flagged. The last test has no later neighbour to confirm it: it is
-  never called an outlier, only reported as off the trend when it lies ``sigma`` times further
-  from the line through the tests before it than the earlier tests did from theirs.
+  median with it and is not flagged; near the end, where the window is cut short, a test that
+  every later test agrees with is not flagged either. The last test has no later neighbour to
+  confirm it: it is never called an outlier, only reported as off the trend when it lies
+  ``sigma`` times further from the line through the tests before it than the earlier tests did
+  from theirs, and that far from the test before it.
 * :func:`last_persistent_fall`: where K fell and stayed down (medians of 3 tests on each side).
 """
 from __future__ import annotations
@@ -91,8 +93,14 @@ def isolated_outliers(t: np.ndarray, k: np.ndarray, std: np.ndarray, sigma: floa
     d1 = np.diff(k)
     edge = np.r_[np.arange(half_window), np.arange(n - half_window, n)]
     scale[edge] = np.maximum(scale[edge], 1.4826 * np.median(np.abs(d1 - np.median(d1))))
-    off = _distance(t, k, half_window) > np.maximum(sigma * scale, min_jump)
+    need = np.maximum(sigma * scale, min_jump)
+    off = _distance(t, k, half_window) > need
     off[-1] = False
+    for i in range(max(n - half_window, 0), n - 1):
+        # near the end the window is cut short: a test that every later one agrees with is a
+        # level that stays (wear that jumped, confirmed), not a failed diagnosis
+        if off[i] and np.all(np.abs(k[i + 1:] - k[i]) <= need[i]):
+            off[i] = False
     w = 2 * half_window
     tc, kc = t[~off], k[~off]                 # the tests set aside judge nothing
     if len(kc) < w + 3:
@@ -100,7 +108,9 @@ def isolated_outliers(t: np.ndarray, k: np.ndarray, std: np.ndarray, sigma: floa
     # each test against the line through the w tests before it
     ahead = kc[w:] - _theil_sen_at(sliding_window_view(tc[:-1], w), sliding_window_view(kc[:-1], w), tc[w:])
     step_scale = 1.4826 * np.median(np.abs(ahead[:-1]))
-    last = bool(abs(ahead[-1]) > max(sigma * max(step_scale, scale[-1]), min_jump))
+    lim = max(sigma * max(step_scale, scale[-1]), min_jump)
+    # ... and away from the test before it: one that agrees with the last test confirms it
+    last = bool(abs(ahead[-1]) > lim and abs(kc[-1] - kc[-2]) > max(sigma * scale[-1], min_jump))
     return off, last
 
 
