@@ -173,10 +173,13 @@ def test_history_add_csv_and_mcap(tmp_path, capsys):
     with BagWriter(bag) as w:
         write_run(w, r2, test_id=3, start_ns=7_000_000_000)
         w.add_metadata("history/test_3", {"time_h": "160.5", "usage": "400", "sim_time_s": "7.0"})
-    # an operating time before the stored one is refused (after the diagnosis), and nothing is written
+    # an operating time before the stored one is refused before the diagnosis (no progress line of
+    # one: the error is all of stderr), and nothing is written
     before = rows_of(db)
-    code, _, err = run(capsys, ["history", "add", str(bag), "--actuator", "X", "--time-h", "50", *common])
-    assert code == 2 and "out of order" in err and rows_of(db) == before
+    code, _, err = run(capsys, ["history", "add", str(bag), "--actuator", "X", "--time-h", "50",
+                                *[a for a in common if a != "--quiet"]])
+    assert code == 2 and "out of order" in err and len(err.strip().splitlines()) == 1, err
+    assert rows_of(db) == before
     code, out, _ = run(capsys, ["history", "add", str(bag), "--actuator", "X", "--json", *common])
     res = json.loads(out)
     assert code == 0 and res["added"] and res["time_h"] == 160.5 and res["usage"] == 400.0
@@ -287,3 +290,13 @@ def test_settings_file_sets_the_requirements_and_the_prognosis(db, tmp_path, cap
                       (["launch", "--settings", str(y)], "needs --history")]:
         code, out, err = run(capsys, argv)
         assert code == 2 and why in err and len(err.strip().splitlines()) == 1, (argv, err)
+
+
+def test_an_argument_error_is_one_line_too(capsys):
+    for argv, why in [(["prognose", "--next-check-h", "abc"], "invalid float value: 'abc'"),
+                      (["history", "repair", "--actuator", "A", "--fault", "xx", "--time-h", "1"], "invalid choice: 'xx'"),
+                      (["prognose", "--no-such-flag"], "unrecognized arguments")]:
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        _, err = capsys.readouterr()
+        assert e.value.code == 2 and why in err and len(err.strip().splitlines()) == 1, (argv, err)

@@ -17,8 +17,16 @@ from .common import UsageError
 GROUPS = (model, bench, analysis, graph, prognostics, fleet)
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument error is one line and exit code 2, as every other bad input (argparse prints
+    the usage block first); ``--help`` still shows the usage. Subcommands inherit the class."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (--help: usage)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="eha-health", description="Health monitor for electrohydraulic servo actuators")
+    ap = OneLineParser(prog="eha-health", description="Health monitor for electrohydraulic servo actuators")
     sub = ap.add_subparsers(dest="command", required=True)
     for g in GROUPS:
         g.register(sub)

@@ -80,6 +80,7 @@ def cmd_history_add(args) -> int:
             print(f"{path}{'' if tid is None else f' test {tid}'} is already in {db} (actuator {t['actuator_id']}, "
                   f"time_h {t['time_h']:g}): nothing added")
             return 0
+        st.check_next_time(args.actuator, time_h, sim_s, str(path))   # before the diagnosis, not after it
         d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=progress(args))
         added = st.add_diagnosis(d, args.actuator, time_h, usage=usage, usage_unit=args.usage_unit,
                                  source_path=path, sim_time_s=sim_s, source_window=window)

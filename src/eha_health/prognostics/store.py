@@ -409,6 +409,13 @@ class HistoryStore:
             "SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ? AND sim_time_s = ?",
             (actuator_id, float(time_h), float(sim_time_s))).fetchone() is not None
 
+    def check_next_time(self, actuator_id: str, time_h: float, sim_time_s: float | None, where: str) -> None:
+        """Raise the error :meth:`add_tests` would give a test of ``actuator_id`` at ``time_h``
+        (out of order, or a duplicate), before the work of diagnosing it; a test the store holds by
+        another path (:meth:`holds_test`) passes: adding it is a no-op."""
+        if not self.holds_test(actuator_id, time_h, sim_time_s):
+            _check_order([(where, HealthRecord(actuator_id, float(time_h), (0.0,) * 3, (0.0,) * 3))], self._latest())
+
     def _writable(self) -> None:
         if self.readonly:
             raise PrognosticsError(f"{self.path}: opened read-only; nothing written")
