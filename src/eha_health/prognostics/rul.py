@@ -583,6 +583,16 @@ def fleet_priors(history, settings: Settings | None = None,
     return {f: _prior_of(ids, _predict_fault(hist, ids, fi, thr[f], s), s) for fi, f in enumerate(FAULTS)}
 
 
+def _needs_prior(hist, actuator: str, thr: dict[str, float], s: Settings) -> bool:
+    """Whether a fault of ``actuator`` has a RUL from fewer than ``fleet.use_below_points`` points
+    since onset (the only case :func:`apply_fleet_prior` uses the fleet)."""
+    for fi, f in enumerate(FAULTS):
+        p = _predict_fault(hist, [actuator], fi, thr[f], s)[0]
+        if p.samples is not None and p.series is not None and p.n_points < s.fleet.use_below_points:
+            return True
+    return False
+
+
 def prognose(history, actuator: str | None = None, next_check_h: float | None = None,
              settings: Settings | None = None, thresholds: dict[str, float] | None = None,
              details: bool = False, priors: dict[str, FleetPrior | None] | None = None):
@@ -609,6 +619,8 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
         raise PrognosticsError(f"unknown actuator {actuator!r} (the history has: {known}"
                                f"{', ...' if len(hist.actuators) > 10 else ''})")
     thr = thresholds or threshold_values(s)
+    if actuator is not None and priors is None and not _needs_prior(hist, actuator, thr, s):
+        priors = {f: None for f in FAULTS}     # no fault of it would take the prior: the fleet is not fitted
     ids = [actuator] if actuator is not None and priors is not None else sorted(hist.actuators)
     preds: dict[str, dict[str, FaultPrediction]] = {a: {} for a in ids}
     for fi, f in enumerate(FAULTS):
