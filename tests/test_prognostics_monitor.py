@@ -133,6 +133,7 @@ def test_monitor_node_appends_and_publishes_the_rul(tmp_path):
     assert "P(failure before the next check" in st.message
     assert float(kv["rul_median_h"]) == pytest.approx(ov["rul_median_h"], rel=1e-5)
     assert kv["dominant_fault"] == "gm" and float(kv["p_fail_next_gm"]) >= 0.2 and kv["rul_median_h_bkl"] == "none"
+    assert "no degradation" in kv["rul_reason_bkl"] and "rul_reason_gm" not in kv      # why bkl has none
     assert float(kv["k_gm"]) == pytest.approx(gm_at(last + 180.0), abs=0.02)
     rul = json.loads(got[0].data)
     assert rul["actuator_id"] == "eha" and rul["time_h"] == last + 180.0

@@ -152,6 +152,8 @@ def rul_values(outcome: Outcome | None) -> dict:
             out[f"{k}_{f}"] = "none" if F.get(k) is None else float(F[k])
         if F.get("p_fail_next_min") is not None:
             out[f"p_fail_next_min_{f}"] = float(F["p_fail_next_min"])
+        if F.get("reason"):
+            out[f"rul_reason_{f}"] = F["reason"]
         # what the history's own checks did (prognostics.scatter), only where they did something
         if F.get("unrecorded_repair_h") is not None:
             out[f"unrecorded_repair_h_{f}"] = float(F["unrecorded_repair_h"])
