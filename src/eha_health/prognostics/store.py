@@ -315,7 +315,8 @@ def _check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = No
         if u0 is not None and r.usage < u0[0]:
             raise PrognosticsError(f"{where}: usage falls: actuator {r.actuator_id} has usage {r.usage:g} at "
                                    f"time_h={r.time_h:g} after {u0[0]:g} at time_h={u0[1]:g} ({u0[2]}); usage "
-                                   f"counts up from new (flight hours or cycles)")
+                                   f"counts up from new (flight hours or cycles; a replaced unit: append its "
+                                   f"tests after `history repair --action replace`)")
         used[r.actuator_id] = (r.usage, r.time_h, where)
 
 
