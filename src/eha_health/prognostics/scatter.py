@@ -12,8 +12,8 @@ to the trend:
   the ends: also its distance from a robust line through the 4 nearest other tests) exceeds
   ``sigma`` scatter sd (the larger of :func:`noise_estimate` and the test's stated standard
   error) and ``min_jump``. A level shift -- wear that jumped and stays -- moves the running
-  median with it and is not flagged; near the end, where the window is cut short, a test that
-  every later test agrees with is not flagged either. The last test has no later neighbour to
+  median with it and is not flagged; near the end, where the window is cut short, neither is a
+  test that every later test agrees with, or one on the line through the tests before it. The last test has no later neighbour to
   confirm it: it is never called an outlier, only reported as off the trend when it lies
   ``sigma`` times further from the line through the tests before it than the earlier tests did
   from theirs, and that far from the test before it.
@@ -96,12 +96,16 @@ def isolated_outliers(t: np.ndarray, k: np.ndarray, std: np.ndarray, sigma: floa
     need = np.maximum(sigma * scale, min_jump)
     off = _distance(t, k, half_window) > need
     off[-1] = False
-    for i in range(max(n - half_window, 0), n - 1):
-        # near the end the window is cut short: a test that every later one agrees with is a
-        # level that stays (wear that jumped, confirmed), not a failed diagnosis
-        if off[i] and np.all(np.abs(k[i + 1:] - k[i]) <= need[i]):
-            off[i] = False
     w = 2 * half_window
+    for i in range(max(n - half_window, w), n - 1):
+        if not off[i]:
+            continue
+        # near the end the window is cut short and holds the tests after i: a test that every
+        # later one agrees with is a level that stays (wear that jumped, confirmed), and one on
+        # the line through the tests before it is on the trend (a later test is what jumped)
+        on_line = abs(k[i] - _theil_sen_at(t[None, i - w:i], k[None, i - w:i], t[i:i + 1])[0]) <= need[i]
+        if on_line or np.all(np.abs(k[i + 1:] - k[i]) <= need[i]):
+            off[i] = False
     tc, kc = t[~off], k[~off]                 # the tests set aside judge nothing
     if len(kc) < w + 3:
         return off, False
