@@ -392,6 +392,7 @@ def test_overall_is_never_less_pessimistic_than_a_fault_on_the_fleet_prior(tmp_p
         faults = [a["faults"][f] for f in ("gm", "bkl")]
         assert any(f["fleet_prior"] for f in faults)
         o = a["overall"]
+        assert o["fleet_prior"] is True                      # built from faults on the prior: said
         for f in faults:
             for q in ("rul_p05_h", "rul_median_h"):
                 assert o[q] is not None and o[q] <= f[q], (j, q, o[q], f[q])
@@ -468,3 +469,17 @@ def test_one_actuator_reads_as_in_the_whole_fleet(tmp_path):
     assert whole["Y"]["faults"]["gm"]["fleet_prior"] is True and whole["A2"]["faults"]["gm"]["fleet_prior"] is False
     for a in ("Y", "A2"):
         assert prognose(h, a, thresholds=THR)["actuators"][a] == whole[a]
+
+
+def test_the_fleet_prior_holds_what_its_members_do_not_know():
+    # members' lives are estimates: a young fleet's are uncertain (and can all be biased the same
+    # way). The prior matches the mixture of the members' lognormals, so their own spread widens it.
+    from eha_health.prognostics.rul import fleet_prior
+    lives = [1000.0, 1100.0, 900.0, 1050.0]
+    sure = fleet_prior(lives, 3)
+    unsure = fleet_prior([(v, 0.5) for v in lives], 3)
+    assert unsure.mu_log == pytest.approx(sure.mu_log)
+    assert unsure.sd_log == pytest.approx(math.sqrt(sure.sd_log ** 2 + 0.25))
+    assert fleet_prior({"a": (1000.0, 0.2), "b": (1200.0, 0.2), "c": (800.0, 0.2)}, 3).excluding("a") is None
+    one = fleet_prior([(1000.0, 0.2), (float("nan"), 0.1), (-5.0, 0.1)], 1)
+    assert one.members == 1 and one.sd_log == pytest.approx(0.2)

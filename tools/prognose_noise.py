@@ -10,7 +10,7 @@ deterministic mean path thr h((t - t_on) / L) (the K_FSJ threshold 0.915, L logn
 1000 h, sd of log 0.3; onset after 5-25 % of L; a test every 50 h (``--interval-h``); the history cut at a uniform
 40-80 % of L), plus the error; the true RUL is where the mean path reaches the threshold.
 ``--laws flat``: K stays at 0.05 (no wear); what it prints is the false alarms. ``--interval-h``:
-hours between tests (dense histories).
+hours between tests (dense histories); ``--cut LO,HI``: where the histories end (young fleets).
 
 Error kinds (sd 0.01 and stated as such unless said):
   white        Gaussian
@@ -68,11 +68,12 @@ def error(kind: str, mu: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarr
     raise ValueError(kind)
 
 
-def fleet(law: str, kind: str, units: int, rng: np.random.Generator, interval_h: float = 50.0) -> tuple[list[dict], dict]:
+def fleet(law: str, kind: str, units: int, rng: np.random.Generator, interval_h: float = 50.0,
+          cut=(0.4, 0.8)) -> tuple[list[dict], dict]:
     h = lambda s: LAWS[law](np.clip(s, 0.0, None))    # noqa: E731
     rows, truth = [], {}
     for u in range(units):
-        life, onset, t = draw_unit(rng, interval_h)
+        life, onset, t = draw_unit(rng, interval_h, cut)
         mu = THRESHOLD * h((t - onset) / life) + (FLAT_K if law == "flat" else 0.0)
         e, stated = error(kind, mu, rng)
         truth[f"U{u}"] = np.inf if law == "flat" else onset + life - t[-1]
@@ -91,6 +92,8 @@ def main() -> None:
     ap.add_argument("--units", type=int, default=30)
     ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--interval-h", type=float, default=50.0, help="hours between tests (default 50)")
+    ap.add_argument("--cut", default="0.4,0.8", help="LO,HI: the history ends at a uniform LO-HI of the life "
+                                                     "after onset (default 0.4,0.8)")
     ap.add_argument("--settings", help="prognostics settings YAML merged over data/prognostics.yaml")
     a = ap.parse_args()
     laws = a.laws.split(",")
@@ -101,7 +104,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         for kind in a.kinds or KINDS:
             for law in laws:
-                rows, truth = fleet(law, kind, a.units, np.random.default_rng(a.seed), a.interval_h)
+                rows, truth = fleet(law, kind, a.units, np.random.default_rng(a.seed), a.interval_h,
+                                    tuple(float(x) for x in a.cut.split(",")))
                 report(f"{kind:12s} {law:12s}", rows, truth, d, settings)
 
 if __name__ == "__main__":

@@ -8,13 +8,13 @@ import numpy as np
 from eha_health.prognostics import prognose
 
 
-def draw_unit(rng: np.random.Generator, interval_h: float) -> tuple[float, float, np.ndarray]:
+def draw_unit(rng: np.random.Generator, interval_h: float, cut=(0.4, 0.8)) -> tuple[float, float, np.ndarray]:
     """(life L [h], onset [h], test times [h]) of one probe unit: L lognormal (median 1000 h, sd of
-    log 0.3), onset after a uniform 5-25 % of L, a test every ``interval_h`` up to a uniform 40-80 %
-    of L after the onset."""
+    log 0.3), onset after a uniform 5-25 % of L, a test every ``interval_h`` up to a uniform
+    ``cut`` (40-80 %) of L after the onset."""
     life = 1000.0 * np.exp(rng.normal(0.0, 0.3))
     onset = rng.uniform(0.05, 0.25) * life
-    return life, onset, np.arange(0.0, onset + rng.uniform(0.4, 0.8) * life, interval_h)
+    return life, onset, np.arange(0.0, onset + rng.uniform(*cut) * life, interval_h)
 
 
 def report(label: str, rows: list[dict], truth: dict[str, float], workdir: str | Path, settings=None) -> None:

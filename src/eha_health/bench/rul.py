@@ -382,8 +382,8 @@ def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float]) 
             p, _ = prepare_fault(u.test_h, u.diag_k[:, fi], u.diag_std[:, fi], thr[f], len(u.test_h), s)
             full.append(p)
         predict_series(full, np.full(len(full), thr[f]), fi, s)
-        lives = np.array([life_estimate(p) if p.series is not None and p.n_points >= s.fleet.min_points
-                          else np.nan for p in full])
+        lives = [life_estimate(p) if p.series is not None and p.n_points >= s.fleet.min_points
+                 else (np.nan, np.nan) for p in full]
         plist = []
         for ui, k in points:
             u = units[ui]
@@ -391,7 +391,7 @@ def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float]) 
             preds[(ui, k)][f] = p
             plist.append(p)
         predict_series(plist, np.full(len(plist), thr[f]), fi, s)
-        priors = {ui: fleet_prior(np.delete(lives, ui), s.fleet.min_members) for ui in range(len(units))}
+        priors = {ui: fleet_prior(lives[:ui] + lives[ui + 1:], s.fleet.min_members) for ui in range(len(units))}
         for (ui, k), p in zip(points, plist):
             apply_fleet_prior(p, priors[ui], s)
     scores = []

@@ -25,9 +25,10 @@ P(R <= t) = 1 - prod_f (1 - F_f(t)) from each fault's weighted samples (:func:`o
 samples do too, only its lower bound is known (``p_fail_next_min``).
 
 Fleet prior: the other actuators with at least ``fleet.min_points`` points since onset
-give lives from onset to threshold L_j = tau_now + median RUL; log L is fitted by a normal
-(lognormal prior on the life of this fault; an actuator that is a member itself gets the prior
-of the others). An actuator with fewer than
+give lives from onset to threshold L_j = tau_now + median RUL, each with the sd s_j of its log
+(from its own 5 % quantile); the prior on the life of this fault is the lognormal with mu =
+mean(log L_j), sd^2 = var(log L_j) + mean(s_j^2) (an actuator that is a member itself gets the
+prior of the others). An actuator with fewer than
 ``fleet.use_below_points`` points since onset has its samples importance-weighted by that
 prior density at tau_now + RUL (Bayes: posterior ~ likelihood x prior); ``fleet_prior``
 says so in the output. With fewer than ``min_tests`` tests since the last repair no RUL
@@ -182,7 +183,7 @@ class FleetPrior:
     mu_log: float
     sd_log: float
     members: int
-    lives: tuple = ()          # (actuator, life [h]) of the members, where known (leave-one-out)
+    lives: tuple = ()          # (actuator, life [h], its sd of log life) of the members, where known
     min_members: int = 0
 
     def logpdf(self, life_h: np.ndarray) -> np.ndarray:
@@ -193,22 +194,33 @@ class FleetPrior:
     def excluding(self, actuator: str) -> "FleetPrior | None":
         """The prior of the other members, for ``actuator`` (its own data must not count twice:
         once as a member, once as the data the prior weighs)."""
-        if not any(a == actuator for a, _ in self.lives):
+        if not any(m[0] == actuator for m in self.lives):
             return self
-        return fleet_prior({a: v for a, v in self.lives if a != actuator}, self.min_members)
+        return fleet_prior({m[0]: m[1:] for m in self.lives if m[0] != actuator}, self.min_members)
 
 
 def fleet_prior(lives_h, min_members: int) -> FleetPrior | None:
-    """Lognormal fitted to members' lives (finite, > 0; a sequence, or a dict by actuator for
-    :meth:`FleetPrior.excluding`); None with fewer than ``min_members``."""
-    named = tuple((a, float(v)) for a, v in lives_h.items() if np.isfinite(v) and v > 0) if isinstance(
-        lives_h, dict) else ()
-    x = np.asarray([v for _, v in named] if isinstance(lives_h, dict) else
-                   [v for v in lives_h if np.isfinite(v) and v > 0], float)
-    if len(x) < min_members:
+    """Lognormal prior of a fault's life from its members' lives; None with fewer than ``min_members``.
+
+    ``lives_h``: a sequence, or a dict by actuator (for :meth:`FleetPrior.excluding`), of lives [h]
+    or of (life [h], sd of its log) pairs -- a member's life is an estimate, and a young member's
+    is uncertain. The prior is the lognormal matched to the mixture of the members' lognormals:
+    mu = mean(log L_j), sd^2 = var(log L_j) + mean(s_j^2), so members that know little of their
+    own life make it wide instead of pulling every receiver to their (possibly biased) medians.
+    Entries not finite or not > 0 are left out.
+    """
+    def pair(v):
+        return (float(v[0]), float(v[1])) if isinstance(v, (tuple, list)) else (float(v), 0.0)
+    items = list(lives_h.items()) if isinstance(lives_h, dict) else [(None, v) for v in lives_h]
+    ok = [(a, *pair(v)) for a, v in items if np.isfinite(pair(v)[0]) and pair(v)[0] > 0]
+    if len(ok) < min_members:
         return None
-    lx = np.log(x)
-    return FleetPrior(float(lx.mean()), max(float(lx.std(ddof=1)), 0.05), len(x), named, min_members)
+    lx = np.log([m[1] for m in ok])
+    within = np.array([m[2] if np.isfinite(m[2]) else 0.0 for m in ok])
+    between = float(lx.var(ddof=1)) if len(lx) > 1 else 0.0     # one member (min_members 1): its own spread
+    sd = math.sqrt(between + float(np.mean(within ** 2)))
+    named = tuple(ok) if isinstance(lives_h, dict) else ()
+    return FleetPrior(float(lx.mean()), max(sd, 0.05), len(ok), named, min_members)
 
 
 def prior_weights(samples_h: np.ndarray, tau_now_h: np.ndarray, prior: FleetPrior) -> np.ndarray:
@@ -365,6 +377,7 @@ def overall(preds: dict[str, FaultPrediction], n_tests: int) -> FaultPrediction:
         grid, mass = np.append(grid, np.inf), np.append(mass, beyond)
     out = FaultPrediction(grid, np.maximum(mass, 0.0), "first-to-threshold", n_tests=n_tests)
     out.horizon_h = min(p.horizon_h for p in have.values())
+    out.fleet_prior = any(p.fleet_prior for p in have.values())     # it is built from that fault's samples
     p_first = {}
     for a, f in enumerate(have):
         mass = le[a] - lt[a]                                   # P(R_f = T)
@@ -538,12 +551,17 @@ def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings,
         p.reason = f"fleet prior not applied: it conflicts with the data (effective samples {ess:.0f})"
 
 
-def life_estimate(p: FaultPrediction) -> float:
-    """Life from onset to threshold [h] that a fleet member contributes (tau_now + median RUL)."""
+def life_estimate(p: FaultPrediction) -> tuple[float, float]:
+    """(life [h], sd of its log) that a fleet member contributes: L = tau_now + median RUL, and
+    (log L - log(tau_now + p05 RUL)) / 1.645 (the lower side: the upper may lie beyond the horizon)."""
     if p.samples is None or p.series is None:
-        return math.nan
-    med = weighted_quantiles(p.samples, p.weights, (0.5,))[0]
-    return float(p.series.tau_h[-1] + med) if np.isfinite(med) else math.nan
+        return math.nan, math.nan
+    p05, med = weighted_quantiles(p.samples, p.weights, (0.05, 0.5))
+    tau = float(p.series.tau_h[-1])
+    if not np.isfinite(med) or tau + med <= 0:
+        return math.nan, math.nan
+    lo = tau + p05
+    return float(tau + med), (float(math.log((tau + med) / lo) / 1.645) if lo > 0 else math.nan)
 
 
 # ----------------------------------------------------------------------------- prognose
