@@ -212,7 +212,7 @@ def fleet_prior(lives_h, min_members: int) -> FleetPrior | None:
     def pair(v):
         return (float(v[0]), float(v[1])) if isinstance(v, (tuple, list)) else (float(v), 0.0)
     items = list(lives_h.items()) if isinstance(lives_h, dict) else [(None, v) for v in lives_h]
-    ok = [(a, *pair(v)) for a, v in items if np.isfinite(pair(v)[0]) and pair(v)[0] > 0]
+    ok = [m for m in ((a, *pair(v)) for a, v in items) if np.isfinite(m[1]) and m[1] > 0]
     if len(ok) < min_members:
         return None
     lx = np.log([m[1] for m in ok])
@@ -380,9 +380,9 @@ def overall(preds: dict[str, FaultPrediction], n_tests: int) -> FaultPrediction:
     out.fleet_prior = any(p.fleet_prior for p in have.values())     # it is built from that fault's samples
     p_first = {}
     for a, f in enumerate(have):
-        mass = le[a] - lt[a]                                   # P(R_f = T)
+        at = le[a] - lt[a]                                     # P(R_f = T)
         later = np.prod(1.0 - le[:a], 0) * np.prod(1.0 - lt[a + 1:], 0)
-        p_first[f] = float(np.sum(mass * later))
+        p_first[f] = float(np.sum(at * later))
     out.model_weights = {}
     out.p_first = p_first
     dom = max(p_first, key=p_first.get) if any(p_first.values()) else min(
@@ -534,10 +534,16 @@ def _predict_prepared(preds: list[FaultPrediction], thresholds: np.ndarray, faul
         p.fits, p.fit_index, p.trend_candidate = fits, int(rows[c]), c
 
 
+def takes_prior(p: FaultPrediction, s: Settings) -> bool:
+    """Whether a prediction has a RUL from fewer than ``fleet.use_below_points`` points since onset:
+    the only case the fleet prior weighs."""
+    return p.samples is not None and p.series is not None and p.n_points < s.fleet.use_below_points
+
+
 def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings, actuator: str | None = None) -> None:
     """Importance-weight the samples of an actuator with few points since onset by the fleet prior
     (of the other members, where ``actuator`` is one)."""
-    if prior is None or p.samples is None or p.series is None or p.n_points >= s.fleet.use_below_points:
+    if prior is None or not takes_prior(p, s):
         return
     if actuator is not None:
         prior = prior.excluding(actuator)
@@ -601,16 +607,6 @@ def fleet_priors(history, settings: Settings | None = None,
     return {f: _prior_of(ids, _predict_fault(hist, ids, fi, thr[f], s), s) for fi, f in enumerate(FAULTS)}
 
 
-def _needs_prior(hist, actuator: str, thr: dict[str, float], s: Settings) -> bool:
-    """Whether a fault of ``actuator`` has a RUL from fewer than ``fleet.use_below_points`` points
-    since onset (the only case :func:`apply_fleet_prior` uses the fleet)."""
-    for fi, f in enumerate(FAULTS):
-        p = _predict_fault(hist, [actuator], fi, thr[f], s)[0]
-        if p.samples is not None and p.series is not None and p.n_points < s.fleet.use_below_points:
-            return True
-    return False
-
-
 def prognose(history, actuator: str | None = None, next_check_h: float | None = None,
              settings: Settings | None = None, thresholds: dict[str, float] | None = None,
              details: bool = False, priors: dict[str, FleetPrior | None] | None = None):
@@ -637,17 +633,22 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
         raise PrognosticsError(f"unknown actuator {actuator!r} (the history has: {known}"
                                f"{', ...' if len(hist.actuators) > 10 else ''})")
     thr = thresholds or threshold_values(s)
-    if actuator is not None and priors is None and not _needs_prior(hist, actuator, thr, s):
-        priors = {f: None for f in FAULTS}     # no fault of it would take the prior: the fleet is not fitted
-    ids = [actuator] if actuator is not None and priors is not None else sorted(hist.actuators)
+    ids = [actuator] if actuator is not None else sorted(hist.actuators)
+    plists = {f: _predict_fault(hist, ids, fi, thr[f], s) for fi, f in enumerate(FAULTS)}
+    if priors is None:
+        # fleet prior from the members (enough points), applied to the actuators with few points;
+        # one actuator's needs the whole fleet fitted, and only when a fault of it takes the prior
+        if actuator is None:
+            priors = {f: _prior_of(ids, plists[f], s) for f in FAULTS}
+        elif any(takes_prior(p, s) for pl in plists.values() for p in pl):
+            priors = fleet_priors(hist, s, thr)
+        else:
+            priors = {}
     preds: dict[str, dict[str, FaultPrediction]] = {a: {} for a in ids}
-    for fi, f in enumerate(FAULTS):
-        plist = _predict_fault(hist, ids, fi, thr[f], s)
-        # fleet prior from the members (enough points), applied to the actuators with few points
-        prior = _prior_of(ids, plist, s) if priors is None else priors.get(f)
-        for a, p in zip(ids, plist):
+    for f in FAULTS:
+        for a, p in zip(ids, plists[f]):
             preds[a][f] = p
-            apply_fleet_prior(p, prior, s, a)
+            apply_fleet_prior(p, priors.get(f), s, a)
     out = {}
     detail = {}
     for a in ids:

@@ -112,9 +112,8 @@ def isolated_outliers(t: np.ndarray, k: np.ndarray, std: np.ndarray, sigma: floa
     # each test against the line through the w tests before it
     ahead = kc[w:] - _theil_sen_at(sliding_window_view(tc[:-1], w), sliding_window_view(kc[:-1], w), tc[w:])
     step_scale = 1.4826 * np.median(np.abs(ahead[:-1]))
-    lim = max(sigma * max(step_scale, scale[-1]), min_jump)
     # ... and away from the test before it: one that agrees with the last test confirms it
-    last = bool(abs(ahead[-1]) > lim and abs(kc[-1] - kc[-2]) > max(sigma * scale[-1], min_jump))
+    last = bool(abs(ahead[-1]) > max(sigma * max(step_scale, scale[-1]), min_jump) and abs(kc[-1] - kc[-2]) > need[-1])
     return off, last
 
 
