@@ -17,9 +17,9 @@ from ..physics.faults import FAULT_KEYS
 from .common import (UsageError, fitness_option, history_option, json_flag, load_test, method_option,
                      prognostics_settings_option, progress, quiet_flag, seed_option, test_option)
 
-def _db(args, must_exist: bool) -> Path:
+def _db(args, must_exist: bool, settings) -> Path:
     from ..prognostics.store import default_history_path
-    path = Path(args.history).expanduser() if args.history else default_history_path(_settings(args))
+    path = Path(args.history).expanduser() if args.history else default_history_path(settings)
     if path.is_dir():
         raise UsageError(f"{path}: a directory, not a history file")
     if must_exist and not path.is_file():
@@ -52,7 +52,8 @@ def cmd_history_add(args) -> int:
         raise UsageError(f"{path}: no such recording")
     _finite(args.time_h, "--time-h")
     _finite(args.usage, "--usage")
-    db = _db(args, must_exist=False)
+    settings = _settings(args)
+    db = _db(args, False, settings)
     r, _, notes = load_test(path, args.test)
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
@@ -70,7 +71,7 @@ def cmd_history_add(args) -> int:
     tid, ids = r.meta.get("test_id"), r.meta.get("test_ids") or []
     window = tid if tid is not None and len(ids) > 1 else None
     digest = recording_hash(path, window)
-    with HistoryStore(db, _settings(args)) as st:
+    with HistoryStore(db, settings) as st:
         known = [t for t in st.list_tests() if t["source_hash"] == digest]
         if known:   # before the diagnosis: the same recording twice adds nothing
             t = known[0]
@@ -96,8 +97,9 @@ def cmd_history_add(args) -> int:
 
 def cmd_history_list(args) -> int:
     from ..prognostics.store import HistoryStore
-    db = _db(args, must_exist=True)
-    with HistoryStore(db, _settings(args), readonly=True) as st:
+    settings = _settings(args)
+    db = _db(args, True, settings)
+    with HistoryStore(db, settings, readonly=True) as st:
         rows = st.list_tests(args.actuator)
         maint = st.list_maintenance(args.actuator)
     if args.json:
@@ -119,8 +121,9 @@ def cmd_history_list(args) -> int:
 
 def cmd_history_import(args) -> int:
     from ..prognostics.store import HistoryStore
-    db = _db(args, must_exist=False)
-    with HistoryStore(db, _settings(args)) as st:
+    settings = _settings(args)
+    db = _db(args, False, settings)
+    with HistoryStore(db, settings) as st:
         n = st.import_csv(args.file)
         total = len(st.list_tests())
     print(f"imported {n} new test(s) from {args.file} into {db} ({total} in all)")
@@ -130,8 +133,9 @@ def cmd_history_import(args) -> int:
 def cmd_history_repair(args) -> int:
     from ..prognostics.store import HistoryStore
     _finite(args.time_h, "--time-h")
-    db = _db(args, must_exist=True)
-    with HistoryStore(db, _settings(args)) as st:
+    settings = _settings(args)
+    db = _db(args, True, settings)
+    with HistoryStore(db, settings) as st:
         st.record_repair(args.actuator, args.fault, args.time_h, action=args.action, note=args.note)
     print(f"recorded: {args.action} of {args.fault} on {args.actuator} at {args.time_h:g} h "
           f"(its trend restarts there) -> {db}")
@@ -184,13 +188,13 @@ def format_prognosis(obj: dict, next_check_h: float) -> str:
 def cmd_prognose(args) -> int:
     from ..prognostics.rul import plot_prognosis, prognose
     from ..prognostics.store import default_history_path
-    src = Path(args.history).expanduser() if args.history else default_history_path(_settings(args))
+    s = _settings(args)
+    src = Path(args.history).expanduser() if args.history else default_history_path(s)
     if src.is_dir():
         raise UsageError(f"{src}: a directory, not a history (a SQLite history file or a HISTORY.csv)")
     if not src.is_file():
         raise UsageError(f"{src}: no such history")
     _finite(args.next_check_h, "--next-check-h", minimum=1e-12)
-    s = _settings(args)
     plotted = None
     if args.plot:
         obj = plot_prognosis(src, args.plot, args.actuator, args.next_check_h, settings=s)
