@@ -347,7 +347,6 @@ class HistoryStore:
             self.conn.close()
             raise PrognosticsError(f"{self.path}: history schema version {ver} is newer than this software's "
                                    f"({SCHEMA_VERSION})")
-        self.empty = False
         if ver == 0:
             # judged before anything is written: a foreign file is refused as it was
             tables = {r[0] for r in self.conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
@@ -355,8 +354,11 @@ class HistoryStore:
                 self.conn.close()
                 raise PrognosticsError(f"{self.path}: an SQLite file that is not a history (tables {sorted(tables)})")
         if readonly:
-            self.empty = ver == 0          # an empty file (or one whose creation never committed): no tests
-            if not self.empty:
+            if ver == 0:   # an empty file (or one whose creation never committed) reads as an empty history
+                self.conn.close()
+                self.conn = sqlite3.connect(":memory:", isolation_level=None)
+                self.conn.executescript(_SCHEMA)
+            else:
                 self._check_columns()
             return
         self.conn.execute("PRAGMA journal_mode=WAL")
@@ -535,8 +537,6 @@ class HistoryStore:
 
     # ------------------------------------------------------------------ reads
     def actuator_ids(self) -> list[str]:
-        if self.empty:
-            return []
         return [r[0] for r in self.conn.execute("SELECT DISTINCT actuator_id FROM tests ORDER BY actuator_id")]
 
     def _require(self, actuator_id: str | None) -> None:
@@ -546,8 +546,6 @@ class HistoryStore:
     def list_tests(self, actuator_id: str | None = None) -> list[dict]:
         """Stored tests (dicts with the schema's columns), by actuator and time."""
         self._require(actuator_id)
-        if self.empty:
-            return []
         q = f"SELECT id, {','.join(TEST_COLUMNS)} FROM tests"
         args: tuple = ()
         if actuator_id is not None:
@@ -563,8 +561,6 @@ class HistoryStore:
 
     def list_maintenance(self, actuator_id: str | None = None) -> list[dict]:
         self._require(actuator_id)
-        if self.empty:
-            return []
         q = "SELECT actuator_id, time_h, fault, action, wall_time_utc, note FROM maintenance"
         args: tuple = ()
         if actuator_id is not None:
@@ -574,8 +570,6 @@ class HistoryStore:
 
     def history(self) -> History:
         """All tests and maintenance as arrays for the prognostics."""
-        if self.empty:
-            return History()
         q = f"SELECT actuator_id, time_h, {','.join(K_COLUMNS + STD_COLUMNS)}, usage FROM tests"
         recs = [HealthRecord(a, t, (g, f, b), (sg, sf, sb), usage=u) for a, t, g, f, b, sg, sf, sb, u in
                 self.conn.execute(q)]
