@@ -13,13 +13,11 @@ the threshold. Prints, per law, the units given a RUL, the coverage of the 5-95 
 the 10/50/90 % quantiles of median/true. The figures of docs/prognostics.md ("Laws the bench
 does not simulate") come from this script.
 """
-import argparse
 import tempfile
 
 import numpy as np
 
-from eha_health.prognostics.config import load_settings
-from rul_probe import draw_unit, report
+from rul_probe import draw_unit, probe_args, report
 
 THRESHOLD = 0.915        # K_FSJ threshold of `eha-health thresholds`
 NU = 0.002               # gamma-process scale: Var K = NU E K
@@ -63,20 +61,12 @@ def fleet(law: str, units: int, rng: np.random.Generator) -> tuple[list[dict], d
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("laws", nargs="*", metavar="LAW", help="of: " + ", ".join(LAWS) + " (default: all)")
-    ap.add_argument("--units", type=int, default=30)
-    ap.add_argument("--seed", type=int, default=3)
-    ap.add_argument("--settings", help="prognostics settings YAML merged over data/prognostics.yaml")
-    a = ap.parse_args()
-    unknown = set(a.laws) - set(LAWS)
-    if unknown:
-        ap.error(f"unknown law(s) {', '.join(sorted(unknown))}; known: {', '.join(LAWS)}")
-    settings = load_settings(a.settings) if a.settings else None
+    a, laws, settings = probe_args(__doc__, "law", LAWS, units=30, seed=3)
     with tempfile.TemporaryDirectory() as d:
-        for law in a.laws or list(LAWS):
+        for law in laws:
             rows, truth = fleet(law, a.units, np.random.default_rng(a.seed))
             report(f"{law:12s}", rows, truth, d, settings)
+
 
 if __name__ == "__main__":
     main()

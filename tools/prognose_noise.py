@@ -26,13 +26,11 @@ Prints per kind and law: the units given a RUL, the coverage of the 5-95 % inter
 without a RUL counts as a miss), the share of medians within +-20 % of the truth and the 10/50/90 %
 quantiles of median/true. docs/prognostics.md ("Diagnosis errors the bench does not make") quotes it.
 """
-import argparse
 import tempfile
 
 import numpy as np
 
-from eha_health.prognostics.config import load_settings
-from rul_probe import draw_unit, report
+from rul_probe import draw_unit, probe_args, report
 
 THRESHOLD = 0.915
 LAWS = {"linear": lambda s: s, "exponential": lambda s: np.expm1(2.2 * s) / np.expm1(2.2),
@@ -85,28 +83,25 @@ def fleet(law: str, kind: str, units: int, rng: np.random.Generator, interval_h:
     return rows, truth
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("kinds", nargs="*", metavar="KIND", help="of: " + ", ".join(KINDS) + " (default: all)")
+def _noise_options(ap) -> None:
     ap.add_argument("--laws", default=",".join(DEFAULT_LAWS), help="of: " + ", ".join(LAWS))
-    ap.add_argument("--units", type=int, default=30)
-    ap.add_argument("--seed", type=int, default=11)
     ap.add_argument("--interval-h", type=float, default=50.0, help="hours between tests (default 50)")
     ap.add_argument("--cut", default="0.4,0.8", help="LO,HI: the history ends at a uniform LO-HI of the life "
                                                      "after onset (default 0.4,0.8)")
-    ap.add_argument("--settings", help="prognostics settings YAML merged over data/prognostics.yaml")
-    a = ap.parse_args()
+
+
+def main() -> None:
+    a, kinds, settings = probe_args(__doc__, "kind", KINDS, units=30, seed=11, extra=_noise_options)
     laws = a.laws.split(",")
-    bad = (set(a.kinds) - set(KINDS)) | (set(laws) - set(LAWS))
-    if bad:
-        ap.error(f"unknown kind(s) or law(s): {', '.join(sorted(bad))}")
-    settings = load_settings(a.settings) if a.settings else None
+    if set(laws) - set(LAWS):
+        raise SystemExit(f"unknown law(s): {', '.join(sorted(set(laws) - set(LAWS)))}; known: {', '.join(LAWS)}")
     with tempfile.TemporaryDirectory() as d:
-        for kind in a.kinds or KINDS:
+        for kind in kinds:
             for law in laws:
                 rows, truth = fleet(law, kind, a.units, np.random.default_rng(a.seed), a.interval_h,
                                     tuple(float(x) for x in a.cut.split(",")))
                 report(f"{kind:12s} {law:12s}", rows, truth, d, settings)
+
 
 if __name__ == "__main__":
     main()

@@ -1,11 +1,31 @@
 """Shared by the prognosis probes (prognose_laws.py, prognose_noise.py): run `prognose` on a
 synthetic K_FSJ history and print one line of how its RULs compare with the truth."""
+import argparse
 import csv
 from pathlib import Path
 
 import numpy as np
 
 from eha_health.prognostics import prognose
+from eha_health.prognostics.config import load_settings
+
+
+def probe_args(doc: str, what: str, names, units: int, seed: int, extra=None):
+    """The probes' command line: positional ``what`` (of ``names``; default all), ``--units``,
+    ``--seed``, ``--settings`` and whatever ``extra(parser)`` adds. Returns (args, chosen names,
+    settings or None); an unknown name is an argparse error."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("names", nargs="*", metavar=what.upper(), help="of: " + ", ".join(names) + " (default: all)")
+    ap.add_argument("--units", type=int, default=units)
+    ap.add_argument("--seed", type=int, default=seed)
+    ap.add_argument("--settings", help="prognostics settings YAML merged over data/prognostics.yaml")
+    if extra is not None:
+        extra(ap)
+    a = ap.parse_args()
+    unknown = set(a.names) - set(names)
+    if unknown:
+        ap.error(f"unknown {what}(s) {', '.join(sorted(unknown))}; known: {', '.join(names)}")
+    return a, a.names or list(names), (load_settings(a.settings) if a.settings else None)
 
 
 def draw_unit(rng: np.random.Generator, interval_h: float, cut=(0.4, 0.8)) -> tuple[float, float, np.ndarray]:
@@ -17,9 +37,10 @@ def draw_unit(rng: np.random.Generator, interval_h: float, cut=(0.4, 0.8)) -> tu
     return life, onset, np.arange(0.0, onset + rng.uniform(*cut) * life, interval_h)
 
 
-def report(label: str, rows: list[dict], truth: dict[str, float], workdir: str | Path, settings=None) -> None:
+def report(label: str, rows: list[dict], truth: dict[str, float], workdir: str | Path, settings=None) -> dict:
     """Write ``rows`` as a HISTORY.csv, prognose it and print: units given a RUL, coverage of the
-    5-95 % interval (no RUL = a miss), medians within +-20 % of ``truth`` [h], median/true quantiles."""
+    5-95 % interval (no RUL = a miss), medians within +-20 % of ``truth`` [h], median/true
+    quantiles. Returns prognose's ``actuators`` object."""
     path = Path(workdir) / "history.csv"
     with open(path, "w", newline="") as f:
         w = csv.DictWriter(f, list(rows[0]))
@@ -34,7 +55,7 @@ def report(label: str, rows: list[dict], truth: dict[str, float], workdir: str |
         low = min((F["rul_p05_h"] for F in false), default=None)
         print(f"{label} no wear: RUL given {len(false):2d}/{len(got)} (false alarms); P(failure before the "
               f"next check) >= 5 % {warn:2d}/{len(got)}; lowest p05 {'-' if low is None else f'{low:.0f} h'}", flush=True)
-        return
+        return out
     given = [(F, r) for F, r in got if F["rul_median_h"] is not None]
     inside = sum((F["rul_p05_h"] or 0.0) <= r <= (F["rul_p95_h"] if F["rul_p95_h"] is not None else np.inf)
                  for F, r in given)
@@ -43,3 +64,4 @@ def report(label: str, rows: list[dict], truth: dict[str, float], workdir: str |
     print(f"{label} RUL given {len(given):2d}/{len(got)}; 90 % interval covers {inside / len(got):4.0%}; "
           f"median within 20 % {close / len(got):4.0%}; median/true 10/50/90 % {q[0]:.2f} / {q[1]:.2f} / {q[2]:.2f}",
           flush=True)
+    return out

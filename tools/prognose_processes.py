@@ -1,0 +1,137 @@
+"""`prognose` on stochastic wear processes and regime changes (a calibration probe).
+
+    python tools/prognose_processes.py [CASE ...] [--units 40] [--seed 5] [--settings YAML]
+
+`tools/prognose_laws.py` varies the mean path's shape, `tools/prognose_noise.py` the diagnosis
+error. This probe varies the wear process itself, as an independent black-box probe of
+2026-11-29 did: per case, ``--units`` actuators whose K_FSJ follows a latent path on a 1-h grid
+from 0 to the threshold 0.915 (life L lognormal, median 1000 h, sd of log 0.3), tests every
+``interval`` h from 0 h up to a uniform ``cut`` of the life, each test the latent K plus Gaussian
+error of sd ``noise`` (stated as such), clipped to [0, 1.5] as a diagnosis is; K_GM and K_BKL sit
+at 0.02 with the same error (they must raise no alarm). The true RUL is the latent path's first
+passage. Cases:
+
+  gamma          gamma process, linear mean, Var K = nu E K, nu 0.001-0.006; error 0.005
+  gamma_n03      the same, error 0.03
+  gamma_t2       gamma process, mean ~ t^2, nu 0.001-0.004
+  wiener         Wiener process with drift, volatility 0.005-0.02 K per sqrt(100 h)
+  two_stage      gamma (nu 0.001), its rate 4x from a uniform 40-70 % of the life on
+  rate_jumps     gamma (nu 0.001), its rate x lognormal(0, 0.4) at Poisson times (mean L / 3)
+  healthy_gamma  no wear for 20-50 % of the life, then gamma (nu 0.002); cut at 50-85 %
+  healthy_n03    the same, error 0.03
+  exp_n03_100h   exponential mean (rate 2-4 per life) with gamma jitter (nu 0.0005), error
+                 0.03, a test every 100 h, cut at 50-85 %
+
+Prints per case the line of `rul_probe.report` (units given a RUL, coverage of the 5-95 %
+interval with a unit without a RUL a miss, medians within +-20 %, median/true quantiles), how
+many of them rest on the fleet prior, and K_GM / K_BKL given a RUL where any is (a false alarm). For ``two_stage``, two more lines split the coverage by whether the history ends before the rate
+change: nothing in such a history shows the change to come. docs/prognostics.md ("Wear processes
+and regime changes") quotes this script.
+"""
+import tempfile
+
+import numpy as np
+
+from rul_probe import probe_args, report
+
+THRESHOLD = 0.915        # K_FSJ threshold of `eha-health thresholds`
+OTHER_K = 0.02           # K_GM and K_BKL: healthy
+
+# name: (law, error sd, test interval [h], cut of the life)
+CASES = {
+    "gamma": ("gamma", 0.005, 50.0, (0.3, 0.85)),
+    "gamma_n03": ("gamma", 0.03, 50.0, (0.3, 0.85)),
+    "gamma_t2": ("gamma_t2", 0.005, 50.0, (0.3, 0.85)),
+    "wiener": ("wiener", 0.005, 50.0, (0.3, 0.85)),
+    "two_stage": ("two_stage", 0.005, 40.0, (0.3, 0.85)),
+    "rate_jumps": ("rate_jumps", 0.005, 40.0, (0.3, 0.85)),
+    "healthy_gamma": ("healthy_gamma", 0.005, 50.0, (0.5, 0.85)),
+    "healthy_n03": ("healthy_gamma", 0.03, 50.0, (0.5, 0.85)),
+    "exp_n03_100h": ("exp", 0.03, 100.0, (0.5, 0.85)),
+}
+
+
+def _gamma_steps(rng: np.random.Generator, mean_steps: np.ndarray, nu: float) -> np.ndarray:
+    """Increments of a gamma process of the given mean increments and Var = nu mean."""
+    return rng.gamma(np.maximum(mean_steps, 1e-12) / nu, nu)
+
+
+def latent_path(law: str, rng: np.random.Generator, life: float) -> tuple[np.ndarray, float, float | None]:
+    """(K on a 1-h grid, first passage of THRESHOLD [h], regime change [h] or None)."""
+    n = int(10 * life) + 10
+    t = np.arange(n, dtype=float)
+    rate = THRESHOLD / life                                   # K / h of the mean path
+    change = None
+    if law == "gamma":
+        inc = _gamma_steps(rng, np.full(n - 1, rate), rng.uniform(0.001, 0.006))
+    elif law == "gamma_t2":
+        inc = _gamma_steps(rng, np.diff(THRESHOLD * (t / life) ** 2), rng.uniform(0.001, 0.004))
+    elif law == "wiener":
+        vol = rng.uniform(0.005, 0.02) / 10.0                 # K per sqrt(h)
+        inc = rate + vol * rng.standard_normal(n - 1)
+    elif law == "two_stage":
+        change = rng.uniform(0.4, 0.7) * life
+        r1 = THRESHOLD / (change + 4.0 * (life - change))     # reaches the threshold at L on average
+        inc = _gamma_steps(rng, np.where(t[1:] < change, r1, 4.0 * r1), 0.001)
+    elif law == "rate_jumps":
+        jump = rng.random(n - 1) < 3.0 / life
+        factor = np.where(jump, np.exp(rng.normal(0.0, 0.4, n - 1)), 1.0)
+        inc = _gamma_steps(rng, rate * np.cumprod(factor), 0.001)
+    elif law == "healthy_gamma":
+        start = rng.uniform(0.2, 0.5) * life
+        inc = np.where(t[1:] < start, 0.0, _gamma_steps(rng, np.full(n - 1, THRESHOLD / (life - start)), 0.002))
+    elif law == "exp":
+        b = rng.uniform(2.0, 4.0)
+        inc = _gamma_steps(rng, np.diff(THRESHOLD * np.expm1(b * t / life) / np.expm1(b)), 0.0005)
+    else:
+        raise ValueError(law)
+    k = np.concatenate([[0.0], np.cumsum(inc)])
+    hit = np.nonzero(k >= THRESHOLD)[0]
+    return k, (float(t[hit[0]]) if len(hit) else np.inf), change
+
+
+def fleet(case: str, units: int, rng: np.random.Generator) -> tuple[list[dict], dict, dict]:
+    """HISTORY.csv rows, true RUL [h] and regime change [h] (or None) per unit."""
+    law, noise, interval, cut = CASES[case]
+    rows, truth, changes = [], {}, {}
+    while len(truth) < units:
+        k, eol, change = latent_path(law, rng, 1000.0 * np.exp(rng.normal(0.0, 0.3)))
+        if not np.isfinite(eol):
+            continue
+        times = np.arange(0.0, rng.uniform(*cut) * eol + 1e-9, interval)
+        if len(times) < 3:
+            continue
+        u = f"U{len(truth):03d}"
+        for ti in times:
+            y = np.clip(np.array([OTHER_K, k[int(ti)], OTHER_K]) + rng.normal(0.0, noise, 3), 0.0, 1.5)
+            rows.append({"actuator_id": u, "time_h": float(ti), "k_gm": float(y[0]), "k_fsj": float(y[1]),
+                         "k_bkl": float(y[2]), "std_gm": noise, "std_fsj": noise, "std_bkl": noise})
+        truth[u] = eol - times[-1]
+        changes[u] = None if change is None else bool(times[-1] < change)
+    return rows, truth, changes
+
+
+def main() -> None:
+    a, cases, settings = probe_args(__doc__, "case", CASES, units=40, seed=5)
+    with tempfile.TemporaryDirectory() as d:
+        for case in cases:
+            rows, truth, before = fleet(case, a.units, np.random.default_rng(a.seed))
+            out = report(f"{case:14s}", rows, truth, d, settings)
+            got = {u: out[u]["faults"]["fsj"] for u in truth}
+            prior = sum(F["fleet_prior"] and F["rul_median_h"] is not None for F in got.values())
+            print(f"  on the fleet prior (fewer than 6 points since onset): {prior} of those given a RUL", flush=True)
+            false = sum(out[u]["faults"][f]["rul_median_h"] is not None for u in truth for f in ("gm", "bkl"))
+            if false:
+                print(f"  K_GM / K_BKL (no wear) given a RUL: {false} of {2 * len(truth)}", flush=True)
+            if any(v is not None for v in before.values()):
+                for label, keep in (("history ends before the change", True), ("history ends after it", False)):
+                    sub = [u for u in truth if before[u] is keep]
+                    inside = [(got[u]["rul_p05_h"] or 0.0) <= truth[u] <= (got[u]["rul_p95_h"] or np.inf)
+                              if got[u]["rul_median_h"] is not None else False for u in sub]
+                    late = sum(got[u]["rul_p05_h"] is not None and truth[u] < got[u]["rul_p05_h"] for u in sub)
+                    print(f"  {label}: {len(sub)} units, 90 % interval covers {np.mean(inside):4.0%}, "
+                          f"{late} with the true RUL below the 5 % quantile (late)", flush=True)
+
+
+if __name__ == "__main__":
+    main()
