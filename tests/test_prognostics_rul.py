@@ -9,6 +9,7 @@ import pytest
 
 from eha_health.prognostics import metrics as M
 from eha_health.prognostics.config import PrognosticsError, load_settings
+from eha_health.prognostics.degradation import degradation_segment, rise_onset
 from eha_health.prognostics.rul import plot_prognosis, prognose
 from eha_health.prognostics.store import HistoryStore, HealthRecord
 from eha_health.prognostics.thresholds import METRICS, failure_thresholds
@@ -34,6 +35,16 @@ def write_history(path, n_act=5, n_tests=14, seed=0, rate_gm=0.001, noise=0.004,
         w.writeheader()
         w.writerows(rows)
     return rows
+
+
+def one_actuator_csv(tmp_path, rows):
+    """A HISTORY.csv at tmp_path/h.csv of rows (actuator, time_h, 3 K, 3 std)."""
+    h = tmp_path / "h.csv"
+    with open(h, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+        w.writerows(rows)
+    return h
 
 
 def test_json_object_of_the_issue(tmp_path):
@@ -102,11 +113,7 @@ def test_a_rise_that_shows_at_one_test_gets_a_rul_from_the_onset_candidates(tmp_
     # flat for 8 tests, then one test clearly above the noise: the onset anchor is the test before it
     t = 50.0 * np.arange(9)
     k = np.r_[np.full(8, 0.01), 0.06]
-    h = tmp_path / "h.csv"
-    with open(h, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
-        w.writerows(["A", ti, ki, 0.0, 0.0, 0.003, 0.001, 0.001] for ti, ki in zip(t, k))
+    h = one_actuator_csv(tmp_path, (["A", ti, ki, 0.0, 0.0, 0.003, 0.001, 0.001] for ti, ki in zip(t, k)))
     gm = prognose(h, thresholds=THR)["actuators"]["A"]["faults"]["gm"]
     assert gm["n_points"] == 2 and gm["onset_posterior"]        # every post-repair point is fitted
     assert gm["rul_p05_h"] > 0
@@ -267,11 +274,7 @@ def test_a_fault_already_beyond_its_threshold_beside_a_degrading_one(tmp_path):
     # K_FSJ came in at 1.0, above its threshold, and stays there; K_GM degrades. prognose raised
     # ValueError (the RUL-0 fault had 1 sample, the other 2000) until 2026-11-28
     t = 50.0 * np.arange(12)
-    h = tmp_path / "h.csv"
-    with open(h, "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
-        w.writerows(["A", ti, 0.0008 * ti, 1.0, 0.0, 0.003, 0.003, 0.001] for ti in t)
+    h = one_actuator_csv(tmp_path, (["A", ti, 0.0008 * ti, 1.0, 0.0, 0.003, 0.003, 0.001] for ti in t))
     a = prognose(h, thresholds=THR)["actuators"]["A"]
     assert a["faults"]["fsj"]["rul_median_h"] == 0.0 and "at or beyond the threshold" in a["faults"]["fsj"]["reason"]
     assert a["faults"]["gm"]["rul_median_h"] > 0
@@ -483,3 +486,43 @@ def test_the_fleet_prior_holds_what_its_members_do_not_know():
     assert fleet_prior({"a": (1000.0, 0.2), "b": (1200.0, 0.2), "c": (800.0, 0.2)}, 3).excluding("a") is None
     one = fleet_prior([(1000.0, 0.2), (float("nan"), 0.1), (-5.0, 0.1)], 1)
     assert one.members == 1 and one.sd_log == pytest.approx(0.2)
+
+
+def test_a_rise_no_single_test_shows_is_seen_by_the_tests_together(tmp_path):
+    # errors of 0.03: flat at 0.03 for 6 tests, then 5 tests up 0.09-0.11. No test clears the
+    # first by 3 sd (0.127), so the per-test rule finds no onset; the 5 together are a rise of
+    # some 7 sd. Before: "no degradation" and no RUL.
+    rng = np.random.default_rng(2)
+    t = 60.0 * np.arange(11)
+    k = np.r_[0.03 + rng.normal(0, 0.01, 6), 0.03 + np.linspace(0.07, 0.11, 5)]
+    assert degradation_segment(t, k, np.full(11, 0.03), 3.0, 0.01) is None
+    j = rise_onset(t, k, np.full(11, 0.03), 16.0)
+    assert j is not None and 2 <= j <= 5        # a ramp fitted to the rise starts a little before it
+    h = one_actuator_csv(tmp_path, (["A", ti, ki, 0.0, 0.0, 0.03, 0.001, 0.001] for ti, ki in zip(t, k)))
+    gm = prognose(h, thresholds=THR)["actuators"]["A"]["faults"]["gm"]
+    assert gm["rul_p05_h"] is not None and gm["rul_p05_h"] > 0, gm
+    assert gm["onset_h"] <= 300 and max(map(float, gm["onset_posterior"])) <= 300   # the rise begins after 300 h
+    off = load_settings(overrides={"prognosis": {"onset_chi2": 0.0}})
+    gm0 = prognose(h, thresholds=THR, settings=off)["actuators"]["A"]["faults"]["gm"]
+    assert gm0["rul_median_h"] is None and "no degradation" in gm0["reason"]
+    with pytest.raises(PrognosticsError, match="onset_chi2"):
+        load_settings(overrides={"prognosis": {"onset_chi2": -1.0}})
+
+
+def test_the_pooled_rise_rule_makes_no_onset_on_flat_data_of_right_errors():
+    # the pooled rule's false alarms: flat histories of 4-40 tests with the errors stated right,
+    # 3000 of them; at the default chi^2 gain of 16 none clears it (docs; 2 allowed)
+    rng = np.random.default_rng(8)
+    s = load_settings()
+    hits = 0
+    for n in rng.integers(4, 41, 3000):
+        t = np.cumsum(rng.uniform(20.0, 80.0, n))
+        sd = rng.uniform(0.002, 0.03)
+        k = 0.05 + rng.normal(0.0, sd, n)
+        hits += rise_onset(t, k, np.full(n, sd), s.prognosis.onset_chi2) is not None
+    assert hits <= 2
+    # one test within the history, however high, is no pooled rise (a failed diagnosis): the
+    # gain is the smallest with any one test before the last left out
+    for i in range(1, 7):
+        assert rise_onset(np.arange(8.0), np.where(np.arange(8) == i, 1.0, 0.0), np.full(8, 0.01), 16.0) is None
+    assert rise_onset(np.arange(8.0), np.r_[np.zeros(5), 0.05, 0.06, 0.07], np.full(8, 0.01), 16.0) in (3, 4)

@@ -64,6 +64,7 @@ class PrognosisSettings:
     onset_sigma: float = _f("-", "onset: rise over the first post-repair K in standard errors")
     onset_delta: float = _f("-", "onset: smallest rise of K")
     onset_candidates: int = _f("-", "onset times weighed by the evidence, from the first post-repair test to the anchor")
+    onset_chi2: float = _f("-", "onset where no single test clears the first: the tests' rise as a whole (hinge over level), gain in chi^2 (0: off)")
     outlier_sigma: float = _f("-", "a test this many scatter sd off its neighbours' median is set aside (0: never, and no unrecorded repair)")
     outlier_min_jump: float = _f("-", "smallest K distance from the neighbours' median for a test to be set aside")
     repair_fall: float = _f("-", "a fall of K that persists by at least this (and outlier_sigma sd) is an unrecorded repair")
@@ -221,6 +222,8 @@ def _validate(s: Settings) -> None:
         raise PrognosticsError("prognosis.min_tests must be >= 3 (a trend needs three points)")
     if not 0 < p.warn_p_fail <= p.error_p_fail <= 1:
         raise PrognosticsError("prognosis: need 0 < warn_p_fail <= error_p_fail <= 1")
+    if not p.onset_chi2 >= 0:
+        raise PrognosticsError(f"prognosis.onset_chi2 must be >= 0 (0: off), got {p.onset_chi2}")
     if p.onset_candidates < 1:
         raise PrognosticsError(f"prognosis.onset_candidates must be >= 1, got {p.onset_candidates}")
     if not (p.outlier_sigma >= 0 and p.outlier_min_jump >= 0 and p.repair_fall >= 0):

@@ -445,3 +445,47 @@ def degradation_segment(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, sigm
     if not len(js):
         return None
     return max(int(js[0]) - 1, 0)
+
+
+def rise_onset(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, chi2_min: float,
+               min_after: int = 2) -> int | None:
+    """Onset test j of the strongest rise of K as a whole, or None if none clears ``chi2_min``.
+
+    For each j with at least ``min_after`` tests after it, the hinge y = c + b max(t - t_j, 0)
+    (b > 0) is fitted by weighted least squares (weights 1/s^2); its gain over a constant level
+    is Delta chi^2_j = (S_xy - S_x S_y / S_w)^2 / (S_xx - S_x^2 / S_w), the sums weighted. The
+    gain counted is the smallest with any one test before the last left out, so no single test
+    within the history (a failed diagnosis) makes a rise; the last one may, as it may in
+    :func:`degradation_segment` (:func:`rul.prepare_fault` weighs a last test off the trend
+    against the history without it). Where the hinge's residual chi^2 per degree of freedom
+    exceeds 1, the gain is divided by it (the errors are understated; an F statistic). The onset
+    is the j of the largest gain if that is >= ``chi2_min``. Where :func:`degradation_segment`
+    asks every later test to clear the first one by sigma sd, this pools the tests: a rise of
+    two sd held by several tests is seen (with errors of 0.03, K rises 0.1 long before any single
+    test clears the first by 3 sd).
+    """
+    n = len(k)
+    m = n - min_after
+    if m < 1:
+        return None
+    w = 1.0 / np.square(std)
+    x = np.maximum(time_h[None, :] - time_h[:m, None], 0.0)          # [J, n]
+    wx, wk = w * x, w * k
+    # the sums with every test, minus each test's share [J, n]: every test left out once
+    sw = w.sum() - w[None, :]
+    sy = wk.sum() - wk[None, :]
+    sx = wx.sum(1, keepdims=True) - wx
+    sxx = (wx * x).sum(1, keepdims=True) - wx * x
+    sxy = (wx * k).sum(1, keepdims=True) - wx * k
+    syy = (wk * k).sum() - wk * k
+    cxy, cxx = sxy - sx * sy / sw, sxx - sx * sx / sw
+    ok = (cxy > 0) & (cxx > 1e-12 * np.maximum(sxx, 1e-300))
+    gain = np.where(ok, cxy * cxy / np.where(ok, cxx, 1.0), 0.0)
+    if n >= 5:
+        # errors understated: the scatter about the hinge itself (n - 1 tests, 2 parameters) is
+        # the error scale where it exceeds the stated one -- an F test, never more lenient
+        resid = np.maximum((syy - sy * sy / sw) - gain, 0.0) / (n - 3)
+        gain = gain / np.maximum(resid, 1.0)
+    gain = gain[:, :-1].min(1)
+    j = int(np.argmax(gain))
+    return j if gain[j] >= chi2_min else None

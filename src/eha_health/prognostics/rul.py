@@ -3,7 +3,8 @@
 For each fault of each actuator, the tests since the fault's last repair (recorded, or a fall
 of K that persists), less those far off their neighbours (failed diagnoses, :mod:`scatter`; a
 last test off the trend gives an even mixture of the predictions with and without it); its onset anchor
-(:func:`degradation.degradation_segment`) and ``prognosis.onset_candidates`` onset times from the
+(:func:`degradation.degradation_segment`; where no test clears the first, the tests' rise as a
+whole, :func:`degradation.rise_onset`) and ``prognosis.onset_candidates`` onset times from the
 first post-repair test to it, each with the models of :mod:`degradation` fitted to every
 post-repair point; weights over (onset, model) from their criteria; then S Monte Carlo samples
 of the RUL [h], each drawing its onset first:
@@ -46,7 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .config import PrognosticsError, Settings, load_settings
-from .degradation import (ModelFit, Series, akaike_weights, degradation_segment, fit_models,
+from .degradation import (ModelFit, Series, akaike_weights, degradation_segment, fit_models, rise_onset,
                           shape_g, shape_g_inv)
 from .scatter import isolated_outliers, last_persistent_fall, noise_estimate
 from .thresholds import FAULTS, threshold_values
@@ -436,6 +437,9 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
         if est > 1.5 * float(np.median(std[:anchor + 1])):   # beyond what a few points make of a right one
             anchor = degradation_segment(time_h, k, np.maximum(std, est), s.prognosis.onset_sigma,
                                          s.prognosis.onset_delta)
+    if anchor is None and s.prognosis.onset_chi2 > 0:
+        # no single test clears the first one: the rise of the tests as a whole
+        anchor = rise_onset(time_h, k, std, s.prognosis.onset_chi2)
     if anchor is None:
         if k[-1] >= threshold:
             p.reason = f"K {k[-1]:.3f} at or beyond the threshold {threshold:.3f} with no trend: RUL 0"
