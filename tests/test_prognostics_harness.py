@@ -92,6 +92,9 @@ def test_bench_end_to_end_tiny(tmp_path):
     r = bench_rul(s, cache_dir=tmp_path / "cache", plot=tmp_path / "b.png", progress=lines.append)
     assert r["points"] >= 3 and r["diagnoses"]["cached"] == 0
     assert any(line.startswith("diagnosis 1/") for line in lines)
+    assert [line.split(",")[0] for line in lines if line.startswith("predictions:")] == [
+        "predictions: fault gm (1/3)", "predictions: fault fsj (2/3)", "predictions: fault bkl (3/3)"]
+    assert lines[-1].startswith("reference predictors")      # the figures are the caller's to print
     assert (tmp_path / "b.png").read_bytes()[:4] == b"\x89PNG"
     m = r["model"]
     assert 0.0 <= m["coverage90"] <= 1.0 and set(r["targets"]) and "ratios_model_to_naive" in r

@@ -367,7 +367,8 @@ class UnitScore:
     dominant_ok: np.ndarray  # predicted dominant fault == the true first fault
 
 
-def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float]) -> list[UnitScore]:
+def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float],
+                         progress: Callable[[str], None] | None = None) -> list[UnitScore]:
     from ..prognostics.rul import (FaultPrediction, apply_fleet_prior, fleet_prior, life_estimate, overall,
                       prepare_fault, predict_series, weighted_quantiles)
     from ..prognostics.metrics import naive_rul
@@ -376,6 +377,9 @@ def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float]) 
     points = [(ui, k) for ui, u in enumerate(units) for k in range(first, len(u.test_h))]
     preds: dict[tuple, dict[str, FaultPrediction]] = {pt: {} for pt in points}
     for fi, f in enumerate(FAULTS):
+        if progress:
+            progress(f"predictions: fault {f} ({fi + 1}/{len(FAULTS)}), {len(points)} prediction points "
+                     f"and {len(units)} completed histories")
         # full histories (the fleet's completed run-to-failure records) give the leave-one-out priors
         full = []
         for u in units:
@@ -561,7 +565,8 @@ def plot_bench(units: list[Unit], scores: list[UnitScore], result: dict, path: s
 
 def bench_rul(settings: Settings | None = None, cache_dir: str | Path = "out/rul_cache",
               plot: str | Path | None = "out/bench_rul.png", progress: Callable[[str], None] | None = print) -> dict:
-    """Run the harness: fleet, real diagnoses (cached), predictions, metrics, plot. Returns the result dict."""
+    """Run the harness: fleet, real diagnoses (cached), predictions, metrics, plot. Returns the
+    result dict (:func:`format_result` prints it); ``progress`` hears each stage."""
     s = settings or load_settings()
     t0 = time.perf_counter()
     thr = threshold_values(s)
@@ -571,8 +576,10 @@ def bench_rul(settings: Settings | None = None, cache_dir: str | Path = "out/rul
                  + ", ".join(f"{f} {v:.3f}" for f, v in thr.items()))
     diag = diagnose_fleet(units, s.bench.method, cache_dir, progress)
     t1 = time.perf_counter()
-    scores = _predict_unit_points(units, s, thr)
+    scores = _predict_unit_points(units, s, thr, progress)
     result = score_fleet(scores, s.bench)
+    if progress:
+        progress(f"reference predictors (oracle and {len(REFERENCES)} Bayesian) at {result['points']} points")
     result["oracle"] = {"alpha_lambda": oracle_alpha_lambda(units, scores, thr, s.bench),
                         **reference_alpha_lambda(units, scores, thr, s.bench)}
     result["thresholds"] = thr
@@ -583,8 +590,6 @@ def bench_rul(settings: Settings | None = None, cache_dir: str | Path = "out/rul
     if plot:
         plot_bench(units, scores, result, plot, s.bench.alpha)
         result["plot"] = str(plot)
-    if progress:
-        progress(format_result(result))
     return result
 
 

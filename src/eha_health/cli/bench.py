@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .common import UsageError, fitness_option, json_flag, progress, quiet_flag
+from .common import UsageError, fitness_option, json_flag, progress, progress_line, quiet_flag
 
 
 def bench_speed(args) -> int:
@@ -158,7 +158,8 @@ def bench_rul(args) -> int:
         raise UsageError(f"--units must be >= 3 (one per fault), got {args.units}")
     over = {"bench": {k: v for k, v in (("n_units", args.units), ("seed", args.seed)) if v is not None}}
     s = load_settings(args.settings, over)
-    res = run(s, args.cache, _plot(args, "out/bench_rul.png"), progress(args))
+    # minutes of work: its stages on stderr, with --json too (stdout stays the JSON)
+    res = run(s, args.cache, _plot(args, "out/bench_rul.png"), None if args.quiet else progress_line)
     if args.markdown:
         write_markdown(res, args.markdown, "eha-health " + " ".join(args.raw))
     print(json.dumps(res, indent=1, default=float) if args.json else format_result(res))
