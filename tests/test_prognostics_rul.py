@@ -479,13 +479,14 @@ def test_the_fleet_prior_holds_what_its_members_do_not_know():
     # way). The prior matches the mixture of the members' lognormals, so their own spread widens it.
     from eha_health.prognostics.rul import fleet_prior
     lives = [1000.0, 1100.0, 900.0, 1050.0]
-    sure = fleet_prior(lives, 3)
-    unsure = fleet_prior([(v, 0.5) for v in lives], 3)
+    sure = fleet_prior({f"u{i}": (v, 0.0) for i, v in enumerate(lives)}, 3)
+    unsure = fleet_prior({f"u{i}": (v, 0.5) for i, v in enumerate(lives)}, 3)
     assert unsure.mu_log == pytest.approx(sure.mu_log)
     assert unsure.sd_log == pytest.approx(math.sqrt(sure.sd_log ** 2 + 0.25))
+    assert sure.sd_log == pytest.approx(np.std(np.log(lives), ddof=1))
     assert fleet_prior({"a": (1000.0, 0.2), "b": (1200.0, 0.2), "c": (800.0, 0.2)}, 3).excluding("a") is None
-    one = fleet_prior([(1000.0, 0.2), (float("nan"), 0.1), (-5.0, 0.1)], 1)
-    assert one.members == 1 and one.sd_log == pytest.approx(0.2)
+    one = fleet_prior({"a": (1000.0, 0.2), "b": (float("nan"), 0.1), "c": (-5.0, 0.1)}, 1)
+    assert one.members == 1 and one.sd_log == pytest.approx(0.2) and one.lives == (("a", 1000.0, 0.2),)
 
 
 def test_a_rise_no_single_test_shows_is_seen_by_the_tests_together(tmp_path):

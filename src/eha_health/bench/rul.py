@@ -395,7 +395,8 @@ def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float],
             preds[(ui, k)][f] = p
             plist.append(p)
         predict_series(plist, np.full(len(plist), thr[f]), fi, s)
-        priors = {ui: fleet_prior(lives[:ui] + lives[ui + 1:], s.fleet.min_members) for ui in range(len(units))}
+        priors = {ui: fleet_prior({u.actuator_id: lv for uj, (u, lv) in enumerate(zip(units, lives)) if uj != ui},
+                                  s.fleet.min_members) for ui in range(len(units))}
         for (ui, k), p in zip(points, plist):
             apply_fleet_prior(p, priors[ui], s)
     scores = []

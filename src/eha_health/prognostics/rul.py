@@ -184,7 +184,7 @@ class FleetPrior:
     mu_log: float
     sd_log: float
     members: int
-    lives: tuple = ()          # (actuator, life [h], its sd of log life) of the members, where known
+    lives: tuple = ()          # (actuator, life [h], its sd of log life) of the members
     min_members: int = 0
 
     def logpdf(self, life_h: np.ndarray) -> np.ndarray:
@@ -200,28 +200,24 @@ class FleetPrior:
         return fleet_prior({m[0]: m[1:] for m in self.lives if m[0] != actuator}, self.min_members)
 
 
-def fleet_prior(lives_h, min_members: int) -> FleetPrior | None:
+def fleet_prior(lives: dict[str, tuple[float, float]], min_members: int) -> FleetPrior | None:
     """Lognormal prior of a fault's life from its members' lives; None with fewer than ``min_members``.
 
-    ``lives_h``: a sequence, or a dict by actuator (for :meth:`FleetPrior.excluding`), of lives [h]
-    or of (life [h], sd of its log) pairs -- a member's life is an estimate, and a young member's
-    is uncertain. The prior is the lognormal matched to the mixture of the members' lognormals:
-    mu = mean(log L_j), sd^2 = var(log L_j) + mean(s_j^2), so members that know little of their
-    own life make it wide instead of pulling every receiver to their (possibly biased) medians.
-    Entries not finite or not > 0 are left out.
+    ``lives``: per member actuator, (life [h], sd of its log) -- a member's life is an estimate
+    (:func:`life_estimate`), and a young member's is uncertain. The prior is the lognormal matched
+    to the mixture of the members' lognormals: mu = mean(log L_j), sd^2 = var(log L_j) +
+    mean(s_j^2), so members that know little of their own life make it wide instead of pulling
+    every receiver to their (possibly biased) medians. Lives not finite or not > 0 are left out
+    (an sd not finite counts as 0).
     """
-    def pair(v):
-        return (float(v[0]), float(v[1])) if isinstance(v, (tuple, list)) else (float(v), 0.0)
-    items = list(lives_h.items()) if isinstance(lives_h, dict) else [(None, v) for v in lives_h]
-    ok = [m for m in ((a, *pair(v)) for a, v in items) if np.isfinite(m[1]) and m[1] > 0]
+    ok = [(a, float(life), float(sd)) for a, (life, sd) in lives.items() if np.isfinite(life) and life > 0]
     if len(ok) < min_members:
         return None
     lx = np.log([m[1] for m in ok])
     within = np.array([m[2] if np.isfinite(m[2]) else 0.0 for m in ok])
     between = float(lx.var(ddof=1)) if len(lx) > 1 else 0.0     # one member (min_members 1): its own spread
     sd = math.sqrt(between + float(np.mean(within ** 2)))
-    named = tuple(ok) if isinstance(lives_h, dict) else ()
-    return FleetPrior(float(lx.mean()), max(sd, 0.05), len(ok), named, min_members)
+    return FleetPrior(float(lx.mean()), max(sd, 0.05), len(ok), tuple(ok), min_members)
 
 
 def prior_weights(samples_h: np.ndarray, tau_now_h: np.ndarray, prior: FleetPrior) -> np.ndarray:
