@@ -189,11 +189,7 @@ def cmd_prognose(args) -> int:
     from ..prognostics.rul import plot_prognosis, prognose
     from ..prognostics.store import default_history_path
     s = _settings(args)
-    src = Path(args.history).expanduser() if args.history else default_history_path(s)
-    if src.is_dir():
-        raise UsageError(f"{src}: a directory, not a history (a SQLite history file or a HISTORY.csv)")
-    if not src.is_file():
-        raise UsageError(f"{src}: no such history")
+    src = Path(args.history).expanduser() if args.history else default_history_path(s)   # as_history checks it
     _finite(args.next_check_h, "--next-check-h", minimum=1e-12)
     plotted = None
     if args.plot:

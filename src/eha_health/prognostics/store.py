@@ -586,10 +586,10 @@ def as_history(obj, settings: Settings | None = None) -> History:
     path = Path(obj)
     if path.is_dir():
         raise PrognosticsError(f"{path}: a directory, not a history (a SQLite history file or a HISTORY.csv)")
-    if path.suffix.lower() == ".csv":
-        return _history_from_records(read_history_csv(path, settings), [])
     if not path.is_file():
         raise PrognosticsError(f"{path}: no such history file")
+    if path.suffix.lower() == ".csv":
+        return _history_from_records(read_history_csv(path, settings), [])
     with HistoryStore(path, settings, readonly=True) as st:
         return st.history()
 
