@@ -9,6 +9,7 @@ import pytest
 
 from eha_health import Faults, load, simulate
 from eha_health.cli import main
+from eha_health.prognostics.store import HealthRecord, HistoryStore
 from eha_health.prognostics.thresholds import threshold_values
 
 
@@ -180,14 +181,22 @@ def test_history_add_csv_and_mcap(tmp_path, capsys):
                                 *[a for a in common if a != "--quiet"]])
     assert code == 2 and "out of order" in err and len(err.strip().splitlines()) == 1, err
     assert rows_of(db) == before
-    code, out, _ = run(capsys, ["history", "add", str(bag), "--actuator", "X", "--json", *common])
+    code, out, err = run(capsys, ["history", "add", str(bag), "--actuator", "X", "--json", *common])
     res = json.loads(out)
     assert code == 0 and res["added"] and res["time_h"] == 160.5 and res["usage"] == 400.0
+    assert "usage falls" not in err
     code, out, _ = run(capsys, ["history", "list", "--history", str(db), "--json"])
     tests = json.loads(out)["tests"]
     assert [t["time_h"] for t in tests] == [100.0, 160.5] and tests[1]["sim_time_s"] == 7.0
     assert tests[0]["k_gm"] == pytest.approx(0.3, abs=0.02) and tests[1]["k_gm"] == pytest.approx(0.35, abs=0.02)
     assert tests[0]["std_gm"] > 0 and tests[0]["method"] == "deterministic" and tests[0]["wall_time_utc"]
+    # a usage below the stored one: kept (a replaced unit's first test), and said
+    r3 = simulate(kind="reference", faults=Faults(k_gm=0.05), params=p, seed=3)
+    r3.to_csv(tmp_path / "r3.csv")
+    code, out, err = run(capsys, ["history", "add", str(tmp_path / "r3.csv"), "--actuator", "X", "--time-h", "200",
+                                  "--usage", "30", *common])
+    assert code == 0 and out.startswith("added: X at 200 h")
+    assert "note: usage falls for actuator X: 30 at time_h=200 after 400 at time_h=160.5" in err
 
 
 
@@ -300,3 +309,31 @@ def test_an_argument_error_is_one_line_too(capsys):
             main(argv)
         _, err = capsys.readouterr()
         assert e.value.code == 2 and why in err and len(err.strip().splitlines()) == 1, (argv, err)
+
+
+def test_a_usage_that_falls_against_the_store_is_kept_with_a_note(tmp_path, capsys):
+    # within one file a falling usage is refused; against the store it may be a replaced unit's
+    # first test (appended before the replacement is recorded): kept, and said
+    hdr = ("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl", "usage")
+    db = tmp_path / "h.sqlite"
+    first = write_csv(tmp_path / "a.csv", [["A", t, 0.01, 0.0, 0.0, 0.002, 0.002, 0.002, 2.0 * t]
+                                           for t in (0.0, 50.0, 100.0)], hdr)
+    code, _, err = run(capsys, ["history", "import", str(first), "--history", str(db)])
+    assert code == 0 and "usage falls" not in err
+    later = write_csv(tmp_path / "b.csv", [["A", 150.0, 0.01, 0.0, 0.0, 0.002, 0.002, 0.002, 20.0],
+                                           ["A", 200.0, 0.01, 0.0, 0.0, 0.002, 0.002, 0.002, 120.0]], hdr)
+    code, _, err = run(capsys, ["history", "import", str(later), "--history", str(db)])
+    assert code == 0 and len(rows_of(db)[0]) == 5
+    assert err.count("usage falls") == 1 and "20 at time_h=150 after 200 at time_h=100" in err
+    assert "--action replace" in err
+    code, _, err = run(capsys, ["history", "import", str(later), "--history", str(db)])   # nothing new: no note
+    assert code == 0 and "usage falls" not in err
+    # once the replacement is recorded, the new unit's tests fall below nothing
+    assert main(["history", "repair", "--actuator", "A", "--fault", "all", "--action", "replace",
+                 "--time-h", "150", "--history", str(db)]) == 0
+    more = write_csv(tmp_path / "c.csv", [["A", 250.0, 0.01, 0.0, 0.0, 0.002, 0.002, 0.002, 220.0]], hdr)
+    code, _, err = run(capsys, ["history", "import", str(more), "--history", str(db)])
+    assert code == 0 and "usage falls" not in err
+    with HistoryStore(db, readonly=True) as st:
+        assert st.usage_notes([HealthRecord("A", 300.0, (0.0,) * 3, (0.0,) * 3, usage=10.0)])   # below 220
+        assert not st.usage_notes([HealthRecord("B", 300.0, (0.0,) * 3, (0.0,) * 3, usage=10.0)])

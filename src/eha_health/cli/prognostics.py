@@ -46,7 +46,7 @@ def _finite(v: float | None, name: str, minimum: float = 0.0) -> None:
 
 def cmd_history_add(args) -> int:
     from ..identification.diagnose import diagnose
-    from ..prognostics.store import HistoryStore, recording_hash
+    from ..prognostics.store import HealthRecord, HistoryStore, recording_hash
     path = Path(args.run)
     if not path.is_file():
         raise UsageError(f"{path}: no such recording")
@@ -83,8 +83,11 @@ def cmd_history_add(args) -> int:
             return 0
         st.check_next_time(args.actuator, time_h, sim_s, str(path))   # before the diagnosis, not after it
         d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=progress(args))
+        notes = st.usage_notes([HealthRecord(args.actuator, float(time_h), (0.0,) * 3, (0.0,) * 3, usage=usage)])
         added = st.add_diagnosis(d, args.actuator, time_h, usage=usage, usage_unit=args.usage_unit,
                                  source_path=path, sim_time_s=sim_s, source_window=window)
+    for n in notes if added else []:
+        print(f"note: {n}", file=sys.stderr)
     ks = ", ".join(f"{n.upper()}={v:.4f}+-{d.std['k_' + n]:.4f}" for n, v in zip(FAULT_KEYS, d.faults.as_tuple()))
     if args.json:
         print(json.dumps({"added": added, "actuator_id": args.actuator, "time_h": time_h, "usage": usage,
@@ -120,12 +123,15 @@ def cmd_history_list(args) -> int:
 
 
 def cmd_history_import(args) -> int:
-    from ..prognostics.store import HistoryStore
+    from ..prognostics.store import HistoryStore, read_history_csv
     settings = _settings(args)
     db = _db(args, False, settings)
     with HistoryStore(db, settings) as st:
+        notes = st.usage_notes(read_history_csv(args.file, settings))
         n = st.import_csv(args.file)
         total = len(st.list_tests())
+    for note in notes if n else []:
+        print(f"note: {note}", file=sys.stderr)
     print(f"imported {n} new test(s) from {args.file} into {db} ({total} in all)")
     return 0
 

@@ -419,6 +419,29 @@ class HistoryStore:
         if not self.holds_test(actuator_id, time_h, sim_time_s):
             _check_order([(where, HealthRecord(actuator_id, float(time_h), (0.0,) * 3, (0.0,) * 3))], self._latest())
 
+    def usage_notes(self, records: list[HealthRecord]) -> list[str]:
+        """Notes for records whose usage is below the actuator's last stored one (since its last
+        replacement): kept -- a replaced unit's first test may come before its replacement is
+        recorded -- but a usage count falls only then, or by a typing error (the usage rate counts
+        from the fall, :meth:`ActuatorHistory.usage_per_hour`). One note per actuator, its first
+        such record."""
+        notes, seen = [], set()
+        for r in sorted((r for r in records if r.usage is not None), key=lambda r: r.time_h):
+            if r.actuator_id in seen:
+                continue
+            seen.add(r.actuator_id)
+            row = self.conn.execute(
+                "SELECT usage, time_h FROM tests WHERE actuator_id = ? AND usage IS NOT NULL AND time_h < ? "
+                "AND time_h >= COALESCE((SELECT MAX(time_h) FROM maintenance WHERE actuator_id = ? "
+                "AND action = 'replace'), -1) ORDER BY time_h DESC LIMIT 1",
+                (r.actuator_id, r.time_h, r.actuator_id)).fetchone()
+            if row is not None and r.usage < row[0]:
+                notes.append(f"usage falls for actuator {r.actuator_id}: {r.usage:g} at time_h={r.time_h:g} after "
+                             f"{row[0]:g} at time_h={row[1]:g} in the history; kept, and the usage rate counts "
+                             f"from it. A replaced unit: record it (eha-health history repair --actuator "
+                             f"{r.actuator_id} --fault all --action replace --time-h T); else correct the usage")
+        return notes
+
     def _writable(self) -> None:
         if self.readonly:
             raise PrognosticsError(f"{self.path}: opened read-only; nothing written")
