@@ -527,3 +527,26 @@ def test_the_pooled_rise_rule_makes_no_onset_on_flat_data_of_right_errors():
     for i in range(1, 7):
         assert rise_onset(np.arange(8.0), np.where(np.arange(8) == i, 1.0, 0.0), np.full(8, 0.01), 16.0) is None
     assert rise_onset(np.arange(8.0), np.r_[np.zeros(5), 0.05, 0.06, 0.07], np.full(8, 0.01), 16.0) in (3, 4)
+
+
+def test_the_fleet_prior_reaches_beyond_a_young_units_horizon(tmp_path):
+    # six members wear K_FSJ linearly over ~1000 h; Y wears at the same rate and has 5 tests over
+    # 20 h. Its own data reach 20 spans (400 h): cut there, the prior had only the samples before
+    # it -- the RUL ended at 400 h against a truth near 960 h, or the prior was refused as
+    # "conflicting" (found by an independent probe).
+    rng = np.random.default_rng(0)
+    rows = []
+    for m in range(6):
+        life = 1000 * np.exp(rng.normal(0, 0.15))
+        rows += [["M%d" % m, t, 0.02, 0.02 + 0.915 * t / life + 0.005 * rng.standard_normal(), 0.02, 0.005, 0.005, 0.005]
+                 for t in np.arange(0, 601, 50.0)]
+    rows += [["Y", t, 0.02, 0.02 + 0.915 * t / 1000 + 0.0005 * rng.standard_normal(), 0.02, 0.0005, 0.0005, 0.0005]
+             for t in np.linspace(0, 20, 5)]
+    h = one_actuator_csv(tmp_path, rows)
+    thr = {"gm": 0.8, "fsj": 0.915, "bkl": 0.85}
+    y = prognose(h, "Y", thresholds=thr)["actuators"]["Y"]
+    f = y["faults"]["fsj"]
+    assert f["fleet_prior"] is True and f["n_points"] < 6
+    assert f["rul_p05_h"] <= 958 <= f["rul_p95_h"] and 800 < f["rul_median_h"] < 1100, f
+    assert f["p_fail_next"] == 0.0 and "p_fail_next_min" not in f      # the horizon reaches the prior's lives
+    assert y["overall"]["rul_median_h"] == f["rul_median_h"]

@@ -256,6 +256,7 @@ class FaultPrediction:
     fit_index: int | None = None          # row of ``fits`` the trend is drawn from ...
     trend_candidate: int = 0              # ... and its onset candidate
     horizon_h: float = math.inf           # shortest prediction horizon of the samples (horizon_factor x span) [h]
+    raw_samples: np.ndarray | None = None  # [M] before the horizon cut (few points since onset: for the fleet prior)
 
     def quantiles(self) -> np.ndarray | None:
         """(p05, median, p95) of the RUL [h]; inf beyond the horizon."""
@@ -489,6 +490,9 @@ def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_i
             # an even mixture: with the last test (wear jumped) or without it (a failed diagnosis)
             p.samples = np.where(u_last < 0.5, without, p.samples)
             p.horizon_h = min(p.horizon_h, a.horizon_h)
+            if p.raw_samples is not None:
+                p.raw_samples = np.where(u_last < 0.5, without if a.raw_samples is None else a.raw_samples,
+                                         p.raw_samples)
 
 
 def _predict_prepared(preds: list[FaultPrediction], thresholds: np.ndarray, fault_index: int, s: Settings) -> None:
@@ -514,16 +518,20 @@ def _predict_prepared(preds: list[FaultPrediction], thresholds: np.ndarray, faul
         within[rows] = np.divide(w, wc[:, None], out=np.full_like(w, 1.0 / w.shape[1]), where=wc[:, None] > 0)
         joint.append((rows, w, wc))
     thr = np.array([thresholds[idx[j]] for j in owner])
-    samples = sample_rul(series, fits, within, thr, draws, s.prognosis.horizon_factor)
+    raw = sample_rul(series, fits, within, thr, draws, math.inf)
+    span = np.array([c.span_h for c in series])
+    samples = np.where(raw > s.prognosis.horizon_factor * span[:, None], np.inf, raw)
     names = [f.model for f in fits]
     for j, i in enumerate(idx):
         p = preds[i]
         rows, w, wc = joint[j]
-        if len(rows) == 1:
-            p.samples = samples[rows[0]]
-        else:
-            onset = _pick(np.cumsum(wc)[None, :] / max(wc.sum(), 1e-300), draws.u_onset)[0]   # per sample
-            p.samples = samples[rows[onset], np.arange(samples.shape[1])]
+        pick = (rows[0], slice(None)) if len(rows) == 1 else (
+            rows[_pick(np.cumsum(wc)[None, :] / max(wc.sum(), 1e-300), draws.u_onset)[0]],   # onset per sample
+            np.arange(samples.shape[1]))
+        p.samples = samples[pick]
+        if p.n_points < s.fleet.use_below_points:
+            # kept for the fleet prior, which knows lives beyond the data's horizon (apply_fleet_prior)
+            p.raw_samples = raw[pick]
         p.horizon_h = s.prognosis.horizon_factor * min(c.span_h for c in p.candidates)
         mw = w.sum(0)
         p.model_weights = dict(zip(names, map(float, mw)))
@@ -549,9 +557,16 @@ def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings,
         prior = prior.excluding(actuator)
         if prior is None:
             return
-    w = prior_weights(p.samples[None, :], np.array([p.series.tau_h[-1]]), prior)[0]
+    # the samples before the horizon cut: the prior knows lives beyond the data's horizon, and a
+    # cut sample (inf) has no life to weigh -- cut, a young unit's posterior ended at 20 data spans
+    tau = float(p.series.tau_h[-1])
+    base = p.raw_samples if p.raw_samples is not None else p.samples
+    w = prior_weights(base[None, :], np.array([tau]), prior)[0]
     ess = w.sum() ** 2 / max(np.sum(w * w), 1e-300) if w.sum() > 0 else 0.0
     if ess >= 50:
+        # the horizon reaches the prior's 99.9 % life (beyond it, samples count as later)
+        p.horizon_h = max(p.horizon_h, math.exp(prior.mu_log + 3.09 * prior.sd_log) - tau)
+        p.samples = np.where(base > p.horizon_h, np.inf, base)
         p.weights, p.fleet_prior, p._q = w, True, None
     else:
         p.reason = f"fleet prior not applied: it conflicts with the data (effective samples {ess:.0f})"
