@@ -102,6 +102,7 @@ def test_import_list_repair_prognose(db, tmp_path, capsys):
     ([["A0", 10, 0.1, 0, 0, -0.01, 0.01, 0.01]], "negative"),
     ([["A0", 10, 1.7, 0, 0, 0.01, 0.01, 0.01]], r"outside \[0, 1.5\]"),
     ([], "empty"),
+    ([["A0", 10, "0.0_5", 0, 0, 0.01, 0.01, 0.01]], r"k_gm '0.0_5' is not a number"),   # float() took it as 0.005
 ])
 def test_bad_import_is_one_line_and_leaves_the_store(db, tmp_path, capsys, rows, why):
     before = rows_of(db)
@@ -337,3 +338,18 @@ def test_a_usage_that_falls_against_the_store_is_kept_with_a_note(tmp_path, caps
     with HistoryStore(db, readonly=True) as st:
         assert st.usage_notes([HealthRecord("A", 300.0, (0.0,) * 3, (0.0,) * 3, usage=10.0)])   # below 220
         assert not st.usage_notes([HealthRecord("B", 300.0, (0.0,) * 3, (0.0,) * 3, usage=10.0)])
+
+
+def test_a_misspelled_std_column_is_refused_and_a_plot_without_suffix_is_a_png(db, tmp_path, capsys):
+    # std_fjs was read as no std at all (K_FSJ's errors estimated) without a word
+    before = rows_of(db)
+    bad = write_csv(tmp_path / "typo.csv", [["A9", 0, 0.02, 0.05, 0.01, 0.01, 0.03, 0.01]],
+                    ("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fjs", "std_bkl"))
+    code, out, err = run(capsys, ["history", "import", str(bad), "--history", str(db)])
+    assert code == 2 and "unknown column(s) std_fjs" in err and rows_of(db) == before
+    own = write_csv(tmp_path / "own.csv", [["A9", 0, 0.02, 0.05, 0.01, "shift 2"]],
+                    ("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "comment"))
+    assert run(capsys, ["history", "import", str(own), "--history", str(db)])[0] == 0   # a column of one's own
+    code, out, _ = run(capsys, ["prognose", "--history", str(db), "--plot", str(tmp_path / "fig")])
+    assert code == 0 and f"plot: {tmp_path / 'fig.png'}" in out
+    assert (tmp_path / "fig.png").read_bytes()[:4] == b"\x89PNG"

@@ -198,6 +198,8 @@ def cmd_prognose(args) -> int:
     src = Path(args.history).expanduser() if args.history else default_history_path(s)   # as_history checks it
     _finite(args.next_check_h, "--next-check-h", minimum=1e-12)
     plotted = None
+    if args.plot and not Path(args.plot).suffix:
+        args.plot += ".png"         # what matplotlib writes; the path said is the path written
     if args.plot:
         obj = plot_prognosis(src, args.plot, args.actuator, args.next_check_h, settings=s)
         plotted = next(iter(obj["actuators"]))

@@ -237,10 +237,14 @@ def _history_from_records(recs: list[HealthRecord], repairs: list[tuple]) -> His
 
 def _float(text: str, where: str, name: str) -> float:
     try:
+        if "_" in text:     # float() reads "0.0_5" as 0.005: a typing error, not a number
+            raise ValueError(text)
         v = float(text)
     except (TypeError, ValueError):
         raise PrognosticsError(f"{where}: {name} {text!r} is not a number") from None
     return v
+
+
 
 
 def read_history_csv(path: str | Path, settings: Settings | None = None) -> list[HealthRecord]:
@@ -255,6 +259,13 @@ def read_history_csv(path: str | Path, settings: Settings | None = None) -> list
         raise PrognosticsError(f"{path}: no such file")
     recs = []
     for where, row in csv_rows(path, ("actuator_id", "time_h", *K_COLUMNS), PrognosticsError):
+        if not recs:
+            # a column named k_* or std_* that is none of ours is a misspelling: read as absent, a
+            # std_fjs left K_FSJ's errors to the estimate; other extra columns are the user's own
+            odd = [c for c in row if c and c.lower().startswith(("k_", "std_")) and c not in K_COLUMNS + STD_COLUMNS]
+            if odd:
+                raise PrognosticsError(f"{path}: unknown column(s) {', '.join(odd)}: the K and std columns are "
+                                       f"{', '.join(K_COLUMNS + STD_COLUMNS)} (case-sensitive)")
         k = tuple(_float(row[f"k_{n}"], where, f"k_{n}") for n in FAULT_KEYS)
         std = tuple(_float(row[f"std_{n}"], where, f"std_{n}") if row.get(f"std_{n}") not in (None, "")
                     else None for n in FAULT_KEYS)
