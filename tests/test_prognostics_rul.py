@@ -550,3 +550,22 @@ def test_the_fleet_prior_reaches_beyond_a_young_units_horizon(tmp_path):
     assert f["rul_p05_h"] <= 958 <= f["rul_p95_h"] and 800 < f["rul_median_h"] < 1100, f
     assert f["p_fail_next"] == 0.0 and "p_fail_next_min" not in f      # the horizon reaches the prior's lives
     assert y["overall"]["rul_median_h"] == f["rul_median_h"]
+
+
+def test_a_straight_rise_just_begun_is_found_where_it_began(tmp_path):
+    # K_FSJ flat at 0.02 (errors 0.005) for 14 tests every 10 h, then a straight rise of
+    # 0.0011 /h from 135 h; the history ends at 210 h. The onset anchor is the first test above
+    # the noise (140 h); the even grid's candidates were 0, 50, 90 and 140 h, and from 90 h a
+    # convex shape took the kink: median 218 h against a true 712 h, P(failure in 50 h) 0.2
+    # (an ERROR) -- an independent probe's unit. The test before the anchor is a candidate now.
+    rng = np.random.default_rng(3)
+    t = 10.0 * np.arange(22)
+    k = 0.02 + 0.0011 * np.maximum(t - 135.0, 0.0) + rng.normal(0.0, 0.005, len(t))
+    h = one_actuator_csv(tmp_path, (["Y", ti, 0.02, ki, 0.02, 0.005, 0.005, 0.005] for ti, ki in zip(t, k)))
+    thr = {"gm": 0.8, "fsj": 0.915, "bkl": 0.85}
+    f = prognose(h, thresholds=thr)["actuators"]["Y"]["faults"]["fsj"]
+    true_rul = (0.915 - 0.02) / 0.0011 + 135.0 - 210.0
+    post = {float(a): w for a, w in f["onset_posterior"].items()}
+    assert sum(w for a, w in post.items() if a >= 120.0) > 0.5, post
+    assert 0.6 * true_rul <= f["rul_median_h"] <= 1.3 * true_rul, (f["rul_median_h"], true_rul)
+    assert f["p_fail_next"] < 0.2

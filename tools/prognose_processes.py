@@ -21,10 +21,13 @@ passage. Cases:
   healthy_n03    the same, error 0.03
   exp_n03_100h   exponential mean (rate 2-4 per life) with gamma jitter (nu 0.0005), error
                  0.03, a test every 100 h, cut at 50-85 %
+  young          healthy_gamma tested every 10 h, cut 60-150 h after the wear began: young wear
+                 (another black-box probe of 2026-11-29 found medians 0.36x and false WARNs)
 
 Prints per case the line of `rul_probe.report` (units given a RUL, coverage of the 5-95 %
 interval with a unit without a RUL a miss, medians within +-20 %, median/true quantiles), how
-many of them rest on the fleet prior, and K_GM / K_BKL given a RUL where any is (a false alarm). For ``two_stage``, two more lines split the coverage by whether the history ends before the rate
+many of them rest on the fleet prior, K_GM / K_BKL given a RUL where any is (a false alarm), and
+the false WARNs: P(failure within the next 50 h) >= 5 % where the true RUL exceeds 100 h. For ``two_stage``, two more lines split the coverage by whether the history ends before the rate
 change: nothing in such a history shows the change to come. docs/prognostics.md ("Wear processes
 and regime changes") quotes this script.
 """
@@ -37,7 +40,7 @@ from rul_probe import probe_args, report
 THRESHOLD = 0.915        # K_FSJ threshold of `eha-health thresholds`
 OTHER_K = 0.02           # K_GM and K_BKL: healthy
 
-# name: (law, error sd, test interval [h], cut of the life)
+# name: (law, error sd, test interval [h], cut: a fraction of the life, or ("after onset", lo, hi) [h])
 CASES = {
     "gamma": ("gamma", 0.005, 50.0, (0.3, 0.85)),
     "gamma_n03": ("gamma", 0.03, 50.0, (0.3, 0.85)),
@@ -48,6 +51,7 @@ CASES = {
     "healthy_gamma": ("healthy_gamma", 0.005, 50.0, (0.5, 0.85)),
     "healthy_n03": ("healthy_gamma", 0.03, 50.0, (0.5, 0.85)),
     "exp_n03_100h": ("exp", 0.03, 100.0, (0.5, 0.85)),
+    "young": ("healthy_gamma", 0.005, 10.0, ("after onset", 60.0, 150.0)),
 }
 
 
@@ -78,7 +82,7 @@ def latent_path(law: str, rng: np.random.Generator, life: float) -> tuple[np.nda
         factor = np.where(jump, np.exp(rng.normal(0.0, 0.4, n - 1)), 1.0)
         inc = _gamma_steps(rng, rate * np.cumprod(factor), 0.001)
     elif law == "healthy_gamma":
-        start = rng.uniform(0.2, 0.5) * life
+        start = change = rng.uniform(0.2, 0.5) * life
         inc = np.where(t[1:] < start, 0.0, _gamma_steps(rng, np.full(n - 1, THRESHOLD / (life - start)), 0.002))
     elif law == "exp":
         b = rng.uniform(2.0, 4.0)
@@ -98,7 +102,8 @@ def fleet(case: str, units: int, rng: np.random.Generator) -> tuple[list[dict], 
         k, eol, change = latent_path(law, rng, 1000.0 * np.exp(rng.normal(0.0, 0.3)))
         if not np.isfinite(eol):
             continue
-        times = np.arange(0.0, rng.uniform(*cut) * eol + 1e-9, interval)
+        end = change + rng.uniform(*cut[1:]) if cut[0] == "after onset" else rng.uniform(*cut) * eol
+        times = np.arange(0.0, min(end, eol - 1.0) + 1e-9, interval)
         if len(times) < 3:
             continue
         u = f"U{len(truth):03d}"
@@ -107,7 +112,7 @@ def fleet(case: str, units: int, rng: np.random.Generator) -> tuple[list[dict], 
             rows.append({"actuator_id": u, "time_h": float(ti), "k_gm": float(y[0]), "k_fsj": float(y[1]),
                          "k_bkl": float(y[2]), "std_gm": noise, "std_fsj": noise, "std_bkl": noise})
         truth[u] = eol - times[-1]
-        changes[u] = None if change is None else bool(times[-1] < change)
+        changes[u] = bool(times[-1] < change) if law == "two_stage" else None
     return rows, truth, changes
 
 
@@ -123,6 +128,10 @@ def main() -> None:
             false = sum(out[u]["faults"][f]["rul_median_h"] is not None for u in truth for f in ("gm", "bkl"))
             if false:
                 print(f"  K_GM / K_BKL (no wear) given a RUL: {false} of {2 * len(truth)}", flush=True)
+            far = [u for u in truth if truth[u] > 100.0]      # 2 checks of 50 h away: a WARN is false
+            warn = sum((got[u]["p_fail_next"] if got[u]["p_fail_next"] is not None else
+                        got[u].get("p_fail_next_min") or 0.0) >= 0.05 for u in far)
+            print(f"  false WARN (P(failure within 50 h) >= 5 %, true RUL > 100 h): {warn} of {len(far)}", flush=True)
             if any(v is not None for v in before.values()):
                 for label, keep in (("history ends before the change", True), ("history ends after it", False)):
                     sub = [u for u in truth if before[u] is keep]

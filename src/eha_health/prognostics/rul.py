@@ -463,7 +463,15 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
         # starts long before.  Onsets from the first post-repair test to the anchor, each fitted to
         # every post-repair point (g = 0 before its onset, so the same data and comparable
         # evidence), are weighed by the evidence (uniform prior over the candidates).
-        js = np.unique(np.round(np.linspace(0, anchor, s.prognosis.onset_candidates)).astype(int))
+        js = np.round(np.linspace(0, anchor, s.prognosis.onset_candidates)).astype(int)
+        if s.prognosis.onset_candidates > 2:
+            # and where a straight rise from a level fits best (the hinge of rise_onset): a rise
+            # shows a test or two after it began, between the even grid's candidates, and from
+            # the one before a convex shape took the kink and extrapolated it (medians 0.36x the
+            # truth and false WARNs on young linear wear: an independent probe)
+            hinge = rise_onset(time_h, k, std, 0.0)
+            js = js if hinge is None else np.r_[js, min(hinge, anchor)]
+        js = np.unique(js)
         p.candidates = [Series(time_h - time_h[j], k, std, float(time_h[-1] - time_h[j])) for j in js]
         p.candidate_onsets_h = [float(time_h[j]) for j in js]
     return p, ser
