@@ -569,3 +569,31 @@ def test_a_straight_rise_just_begun_is_found_where_it_began(tmp_path):
     assert sum(w for a, w in post.items() if a >= 120.0) > 0.5, post
     assert 0.6 * true_rul <= f["rul_median_h"] <= 1.3 * true_rul, (f["rul_median_h"], true_rul)
     assert f["p_fail_next"] < 0.2
+
+
+def test_a_rise_only_the_last_test_shows_must_clear_the_outlier_level():
+    # one test 3 sd up is about 1 flat series in 700 at every look: read as wear, it gave RULs of
+    # hours (an independent probe: 16 tests at 0.02 +- 0.005, a low first test, the last 0.0306:
+    # p05 3 h, P(failure in 50 h) 0.32 -- an ERROR on a fault at 4 % of its threshold)
+    k = np.array([0.00718, 0.02537, 0.02364, 0.01622, 0.01306, 0.0130, 0.02367, 0.01987, 0.02034, 0.01897,
+                  0.01848, 0.01911, 0.01507, 0.01293, 0.01236, 0.03058])
+    t, sd = 10.0 * np.arange(16), np.full(16, 0.005)
+    assert degradation_segment(t, k, sd, 3.0, 0.01) == 14                     # the last test alone
+    assert degradation_segment(t, k, sd, 3.0, 0.01, sigma_last=5.0) is None
+    gm = prognose(_history_of("FLAT", t, k, sd), thresholds=THR)["actuators"]["FLAT"]["faults"]["gm"]
+    assert gm["rul_median_h"] is None and "no degradation" in gm["reason"]
+    # flat series of right errors: onsets shown by the last test alone are gone, and a jump that
+    # clears 5 sd is still wear at once (test_a_rise_that_shows_at_one_test_...)
+    rng = np.random.default_rng(4)
+    hits = {None: 0, 5.0: 0}
+    for n in rng.integers(5, 41, 3000):
+        y = 0.05 + rng.normal(0.0, 0.005, n)
+        for last in hits:
+            hits[last] += degradation_segment(np.arange(n) * 50.0, y, np.full(n, 0.005), 3.0, 0.01, last) is not None
+    assert hits[None] >= 2 and hits[5.0] <= 1, hits
+
+
+def _history_of(actuator, t, k, sd):
+    from eha_health.prognostics.store import _history_from_records
+    return _history_from_records([HealthRecord(actuator, float(ti), (float(ki), 0.0, 0.0), (float(si), 0.001, 0.001))
+                                  for ti, ki, si in zip(t, k, sd)], [])

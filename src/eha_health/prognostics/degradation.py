@@ -426,11 +426,15 @@ def model_weights(fits: list[ModelFit], ms: ModelSettings) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- onset
 def degradation_segment(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, sigma: float,
-                        delta: float) -> int | None:
+                        delta: float, sigma_last: float | None = None) -> int | None:
     """Index of the anchor test of the degradation segment, or None if no onset yet.
 
     Onset: the first test j from which every later K exceeds the first one by more than
-    max(sigma sqrt(s_j^2 + s_0^2), delta); the anchor is the test before it (or test 0).
+    max(sigma sqrt(s_j^2 + s_0^2), delta); the anchor is the test before it (or test 0). A rise
+    that only the last test shows must clear ``sigma_last`` sd instead (where given): one test
+    3 sd up is 1 flat series in 700 at every look, and it was read as wear with a RUL of hours
+    (an independent probe: 9 false WARNs in a 3000-actuator fleet); a real rise shows again at
+    the next test.
     """
     n = len(k)
     if n < 2:
@@ -443,6 +447,9 @@ def degradation_segment(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, sigm
     tail_ok = np.logical_and.accumulate(above[::-1])[::-1]
     js = np.nonzero(tail_ok)[0]
     if not len(js):
+        return None
+    if js[0] == n - 1 and sigma_last is not None and not rise[-1] > max(
+            sigma_last * math.sqrt(std[-1] ** 2 + std[0] ** 2), delta):
         return None
     return max(int(js[0]) - 1, 0)
 

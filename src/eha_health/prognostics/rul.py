@@ -426,14 +426,16 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
         # a failed or disturbed diagnosis: set aside, named in the output
         p.outliers_h = [float(t) for t in time_h[off]]
         time_h, k, std = time_h[~off], k[~off], std[~off]
-    anchor = degradation_segment(time_h, k, std, s.prognosis.onset_sigma, s.prognosis.onset_delta)
+    # a rise only the last test shows is judged as a test off its neighbours is (outlier_sigma)
+    last_sigma = max(s.prognosis.onset_sigma, s.prognosis.outlier_sigma)
+    anchor = degradation_segment(time_h, k, std, s.prognosis.onset_sigma, s.prognosis.onset_delta, last_sigma)
     if anchor is not None and anchor >= 4:
         # the tests before the rise show the diagnosis scatter; where it exceeds the stated errors
         # (understated), a rise of a few stated sd is noise: judge the onset by the larger one
         est = noise_estimate(k[:anchor + 1])
         if est > 1.5 * float(np.median(std[:anchor + 1])):   # beyond what a few points make of a right one
             anchor = degradation_segment(time_h, k, np.maximum(std, est), s.prognosis.onset_sigma,
-                                         s.prognosis.onset_delta)
+                                         s.prognosis.onset_delta, last_sigma)
     if anchor is None and s.prognosis.onset_chi2 > 0:
         # no single test clears the first one: the rise of the tests as a whole
         anchor = rise_onset(time_h, k, std, s.prognosis.onset_chi2)
