@@ -353,3 +353,17 @@ def test_a_misspelled_std_column_is_refused_and_a_plot_without_suffix_is_a_png(d
     code, out, _ = run(capsys, ["prognose", "--history", str(db), "--plot", str(tmp_path / "fig")])
     assert code == 0 and f"plot: {tmp_path / 'fig.png'}" in out
     assert (tmp_path / "fig.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_a_back_filled_repair_says_where_the_trend_restarts(db, capsys):
+    # a maintenance log entered late: a repair before one already recorded is kept, and said to
+    # leave the trend where the later one restarts it (before, it read "its trend restarts there")
+    common = ["--actuator", "A1", "--history", str(db)]
+    code, out, err = run(capsys, ["history", "repair", "--fault", "gm", "--time-h", "300", *common])
+    assert code == 0 and "(its trend restarts there)" in out and err == ""
+    code, out, err = run(capsys, ["history", "repair", "--fault", "gm", "--time-h", "100", *common])
+    assert code == 0 and "(kept in the log only)" in out and "gm at 300 h" in err
+    code, out, err = run(capsys, ["history", "repair", "--fault", "all", "--time-h", "200", "--action", "replace", *common])
+    assert code == 0 and "(the trend of fsj, bkl restarts there)" in out and "gm at 300 h" in err
+    code, out, _ = run(capsys, ["history", "list", "--history", str(db), "--json"])
+    assert {(m["fault"], m["time_h"]) for m in json.loads(out)["maintenance"]} >= {("gm", 300.0), ("gm", 100.0), ("all", 200.0)}

@@ -143,8 +143,19 @@ def cmd_history_repair(args) -> int:
     db = _db(args, True, settings)
     with HistoryStore(db, settings) as st:
         st.record_repair(args.actuator, args.fault, args.time_h, action=args.action, note=args.note)
-    print(f"recorded: {args.action} of {args.fault} on {args.actuator} at {args.time_h:g} h "
-          f"(its trend restarts there) -> {db}")
+        log = st.list_maintenance(args.actuator)
+    # a back-filled log: where a later maintenance covers the fault, its trend restarts there
+    fault = args.fault.lower().removeprefix("k_")
+    later = {f: max(m["time_h"] for m in log if m["fault"] in (f, "all"))
+             for f in (FAULT_KEYS if fault == "all" else (fault,))}
+    here = [f for f, t in later.items() if t <= args.time_h]
+    later = {f: t for f, t in later.items() if t > args.time_h}
+    said = ("its trend restarts there" if not later else
+            f"the trend of {', '.join(here)} restarts there" if here else "kept in the log only")
+    print(f"recorded: {args.action} of {args.fault} on {args.actuator} at {args.time_h:g} h ({said}) -> {db}")
+    if later:
+        print("note: a later maintenance is recorded, where the trend restarts instead: "
+              + ", ".join(f"{f} at {t:g} h" for f, t in later.items()), file=sys.stderr)
     return 0
 
 
