@@ -395,10 +395,10 @@ def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float],
             preds[(ui, k)][f] = p
             plist.append(p)
         predict_series(plist, np.full(len(plist), thr[f]), fi, s)
-        priors = {ui: fleet_prior({u.actuator_id: lv for uj, (u, lv) in enumerate(zip(units, lives)) if uj != ui},
-                                  s.fleet.min_members) for ui in range(len(units))}
+        # each unit takes the prior of the others (apply_fleet_prior leaves its own life out)
+        prior = fleet_prior({u.actuator_id: lv for u, lv in zip(units, lives)}, s.fleet.min_members)
         for (ui, k), p in zip(points, plist):
-            apply_fleet_prior(p, priors[ui], s)
+            apply_fleet_prior(p, prior, s, units[ui].actuator_id)
     scores = []
     for ui, u in enumerate(units):
         ks = [k for (uj, k) in points if uj == ui]

@@ -123,8 +123,9 @@ def _chol2(c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, thr: np.ndarray,
-               draws: Draws, horizon_factor: float) -> np.ndarray:
-    """RUL samples [S, M] in hours (inf: no crossing within the horizon)."""
+               draws: Draws) -> np.ndarray:
+    """RUL samples [S, M] in hours (inf: no crossing); the horizon cut is the caller's
+    (:func:`_predict_prepared`: the fleet prior weighs the samples before it)."""
     S, M = len(series), len(draws.u_model)
     out = np.empty((S, M))
     span = np.array([s.span_h for s in series])
@@ -171,9 +172,7 @@ def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, 
                     r = np.where(level >= th, 0.0, np.where(p1 > 0, t_star - tn, np.inf))
             r = np.where(np.isfinite(r), np.maximum(r, 0.0), np.inf)
             rul = np.where(use, r, rul)
-        rul *= span[sl, None]
-        rul[rul > horizon_factor * span[sl, None]] = np.inf
-        out[sl] = rul
+        out[sl] = rul * span[sl, None]
     return out
 
 
@@ -436,7 +435,8 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
         if est > 1.5 * float(np.median(std[:anchor + 1])):   # beyond what a few points make of a right one
             anchor = degradation_segment(time_h, k, np.maximum(std, est), s.prognosis.onset_sigma,
                                          s.prognosis.onset_delta, last_sigma)
-    if anchor is None and s.prognosis.onset_chi2 > 0:
+    pooled = anchor is None and s.prognosis.onset_chi2 > 0
+    if pooled:
         # no single test clears the first one: the rise of the tests as a whole
         anchor = rise_onset(time_h, k, std, s.prognosis.onset_chi2)
     if anchor is None:
@@ -466,7 +466,7 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
         # every post-repair point (g = 0 before its onset, so the same data and comparable
         # evidence), are weighed by the evidence (uniform prior over the candidates).
         js = np.round(np.linspace(0, anchor, s.prognosis.onset_candidates)).astype(int)
-        if s.prognosis.onset_candidates > 2:
+        if s.prognosis.onset_candidates > 2 and not pooled:     # pooled, the anchor is the hinge
             # and where a straight rise from a level fits best (the hinge of rise_onset): a rise
             # shows a test or two after it began, between the even grid's candidates, and from
             # the one before a convex shape took the kink and extrapolated it (medians 0.36x the
@@ -528,7 +528,7 @@ def _predict_prepared(preds: list[FaultPrediction], thresholds: np.ndarray, faul
         within[rows] = np.divide(w, wc[:, None], out=np.full_like(w, 1.0 / w.shape[1]), where=wc[:, None] > 0)
         joint.append((rows, w, wc))
     thr = np.array([thresholds[idx[j]] for j in owner])
-    raw = sample_rul(series, fits, within, thr, draws, math.inf)
+    raw = sample_rul(series, fits, within, thr, draws)
     span = np.array([c.span_h for c in series])
     samples = np.where(raw > s.prognosis.horizon_factor * span[:, None], np.inf, raw)
     names = [f.model for f in fits]
@@ -539,7 +539,7 @@ def _predict_prepared(preds: list[FaultPrediction], thresholds: np.ndarray, faul
             rows[_pick(np.cumsum(wc)[None, :] / max(wc.sum(), 1e-300), draws.u_onset)[0]],   # onset per sample
             np.arange(samples.shape[1]))
         p.samples = samples[pick]
-        if p.n_points < s.fleet.use_below_points:
+        if takes_prior(p, s):
             # kept for the fleet prior, which knows lives beyond the data's horizon (apply_fleet_prior)
             p.raw_samples = raw[pick]
         p.horizon_h = s.prognosis.horizon_factor * min(c.span_h for c in p.candidates)
