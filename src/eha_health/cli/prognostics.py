@@ -127,8 +127,9 @@ def cmd_history_import(args) -> int:
     settings = _settings(args)
     db = _db(args, False, settings)
     with HistoryStore(db, settings) as st:
-        notes = st.usage_notes(read_history_csv(args.file, settings))
-        n = st.import_csv(args.file)
+        recs = read_history_csv(args.file, settings)
+        notes = st.usage_notes(recs)
+        n = st.import_csv(args.file, recs)
         total = len(st.list_tests())
     for note in notes if n else []:
         print(f"note: {note}", file=sys.stderr)
@@ -137,17 +138,15 @@ def cmd_history_import(args) -> int:
 
 
 def cmd_history_repair(args) -> int:
-    from ..prognostics.store import HistoryStore
+    from ..prognostics.store import HistoryStore, trend_start_h
     _finite(args.time_h, "--time-h")
     settings = _settings(args)
     db = _db(args, True, settings)
     with HistoryStore(db, settings) as st:
         st.record_repair(args.actuator, args.fault, args.time_h, action=args.action, note=args.note)
-        log = st.list_maintenance(args.actuator)
+        log = [(m["time_h"], m["fault"]) for m in st.list_maintenance(args.actuator)]
     # a back-filled log: where a later maintenance covers the fault, its trend restarts there
-    fault = args.fault.lower().removeprefix("k_")
-    later = {f: max(m["time_h"] for m in log if m["fault"] in (f, "all"))
-             for f in (FAULT_KEYS if fault == "all" else (fault,))}
+    later = {f: trend_start_h(log, f) for f in (FAULT_KEYS if args.fault == "all" else (args.fault,))}
     here = [f for f, t in later.items() if t <= args.time_h]
     later = {f: t for f, t in later.items() if t > args.time_h}
     said = ("its trend restarts there" if not later else

@@ -194,8 +194,8 @@ class ActuatorHistory:
 
     def since_repair(self, fault: str) -> np.ndarray:
         """Mask of the tests at or after the fault's last maintenance (its current trend)."""
-        times = [t for t, f, *_ in self.repairs if f in (fault, "all")]
-        return self.time_h >= max(times) if times else np.ones(len(self.time_h), bool)
+        start = trend_start_h(self.repairs, fault)
+        return self.time_h >= start if start is not None else np.ones(len(self.time_h), bool)
 
     def usage_per_hour(self) -> float | None:
         """Usage rate [usage unit / h] from a straight line through the tests with usage (since the
@@ -213,6 +213,13 @@ class ActuatorHistory:
             return None
         rate = float(np.polyfit(self.time_h[ok], self.usage[ok], 1)[0])
         return rate if rate > 0 else None
+
+
+def trend_start_h(repairs, fault: str) -> float | None:
+    """Where a fault's trend restarts [h]: its latest maintenance, of it or of ``all``, from
+    ``repairs`` of (time_h, fault, ...); None if it has none."""
+    times = [t for t, f, *_ in repairs if f in (fault, "all")]
+    return max(times) if times else None
 
 
 @dataclass
@@ -243,8 +250,6 @@ def _float(text: str, where: str, name: str) -> float:
     except (TypeError, ValueError):
         raise PrognosticsError(f"{where}: {name} {text!r} is not a number") from None
     return v
-
-
 
 
 def read_history_csv(path: str | Path, settings: Settings | None = None) -> list[HealthRecord]:
@@ -534,9 +539,10 @@ class HistoryStore:
                          source_path=str(source_path) if source_path is not None else None, source_hash=h)
         return self.add_tests([rec], [f"diagnosis for actuator {actuator_id} at time_h={time_h:g}"]) == 1
 
-    def import_csv(self, path: str | Path) -> int:
-        """Append the rows of a HISTORY.csv (each row hashed: importing twice adds nothing)."""
-        recs = read_history_csv(path, self.settings)
+    def import_csv(self, path: str | Path, records: list[HealthRecord] | None = None) -> int:
+        """Append the rows of a HISTORY.csv (each row hashed: importing twice adds nothing);
+        ``records``: its rows already read (:func:`read_history_csv`)."""
+        recs = read_history_csv(path, self.settings) if records is None else records
         return self.add_tests(recs, [f"{Path(path).name} row {i + 1}" for i in range(len(recs))])
 
     def record_repair(self, actuator_id: str, fault: str, time_h: float, action: str = "repair",
