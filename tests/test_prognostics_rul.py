@@ -596,4 +596,4 @@ def test_a_rise_only_the_last_test_shows_must_clear_the_outlier_level():
 def _history_of(actuator, t, k, sd):
     from eha_health.prognostics.store import _history_from_records
     return _history_from_records([HealthRecord(actuator, float(ti), (float(ki), 0.0, 0.0), (float(si), 0.001, 0.001))
-                                  for ti, ki, si in zip(t, k, sd)], [])
+                                  for ti, ki, si in zip(t, k, sd)], [], 0.002)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from eha_health.prognostics.config import PrognosticsError, load_settings
-from eha_health.prognostics.store import SCHEMA_VERSION, HistoryStore, HealthRecord, read_history_csv
+from eha_health.prognostics.store import SCHEMA_VERSION, HistoryStore, HealthRecord, as_history, read_history_csv
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
 
@@ -132,9 +132,96 @@ def test_missing_std_is_the_series_scatter(tmp_path):
     k = np.clip(0.0008 * t + rng.normal(0, 0.02, len(t)), 0, 1.5)
     p = tmp_path / "h.csv"
     p.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl\n" + "".join(f"A,{a},{b},0,0\n" for a, b in zip(t, k)))
-    recs = read_history_csv(p)
-    assert 0.7 * 0.02 < recs[0].std[0] < 1.3 * 0.02
-    assert recs[0].std[1] == load_settings().history.default_std      # a flat series: the floor
+    assert read_history_csv(p)[0].std == (None, None, None)            # not stated: estimated when read
+    std = as_history(p).actuators["A"].std
+    assert np.all((0.7 * 0.02 < std[:, 0]) & (std[:, 0] < 1.3 * 0.02))
+    assert np.all(std[:, 1] == load_settings().history.default_std)     # a flat series: the floor
+
+
+def test_missing_std_is_estimated_from_every_test_held(tmp_path):
+    """The daily workflow: one test per actuator per file. Each import alone has no scatter of its
+    own (schema 1 stored the floor 0.002 for every one); read, the std is the whole series'."""
+    rng = np.random.default_rng(8)
+    t = np.arange(25) * 40.0
+    k = np.clip(0.1 + 0.0002 * t + rng.normal(0, 0.005, len(t)), 0, 1.5)
+    rows = [f"A,{a},{b},0,0\n" for a, b in zip(t, k)]
+    whole = tmp_path / "whole.csv"
+    whole.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl\n" + "".join(rows))
+    with HistoryStore(tmp_path / "daily.sqlite") as st:
+        for i, row in enumerate(rows):
+            day = tmp_path / f"day{i}.csv"
+            day.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl\n" + row)
+            assert st.import_csv(day) == 1
+        assert all(r["std_gm"] is None for r in st.list_tests())        # stored as not stated
+        daily = st.history().actuators["A"].std
+    with HistoryStore(tmp_path / "once.sqlite") as st:
+        assert st.import_csv(whole) == len(t)
+        once = st.history().actuators["A"].std
+    assert np.array_equal(daily, once) and np.array_equal(once, as_history(whole).actuators["A"].std)
+    assert np.all((0.6 * 0.005 < daily[:, 0]) & (daily[:, 0] < 1.4 * 0.005)), daily[0]
+
+
+V1_TESTS = """CREATE TABLE schema_version (version INTEGER NOT NULL, applied_utc TEXT NOT NULL);
+CREATE TABLE tests (id INTEGER PRIMARY KEY, actuator_id TEXT NOT NULL CHECK (length(actuator_id) > 0),
+    time_h REAL NOT NULL CHECK (time_h >= 0), wall_time_utc TEXT NOT NULL, sim_time_s REAL, usage REAL,
+    usage_unit TEXT, k_gm REAL NOT NULL CHECK (k_gm BETWEEN 0 AND 1.5),
+    k_fsj REAL NOT NULL CHECK (k_fsj BETWEEN 0 AND 1.5), k_bkl REAL NOT NULL CHECK (k_bkl BETWEEN 0 AND 1.5),
+    std_gm REAL NOT NULL CHECK (std_gm >= 0), std_fsj REAL NOT NULL CHECK (std_fsj >= 0),
+    std_bkl REAL NOT NULL CHECK (std_bkl >= 0), method TEXT, cost REAL, fit_rms TEXT, discrepancy TEXT,
+    warnings TEXT, source_path TEXT, source_hash TEXT NOT NULL UNIQUE, software_version TEXT NOT NULL,
+    UNIQUE (actuator_id, time_h));
+CREATE TABLE maintenance (id INTEGER PRIMARY KEY, actuator_id TEXT NOT NULL, time_h REAL NOT NULL
+    CHECK (time_h >= 0), fault TEXT NOT NULL CHECK (fault IN ('gm', 'fsj', 'bkl', 'all')),
+    action TEXT NOT NULL CHECK (action IN ('repair', 'replace')), wall_time_utc TEXT NOT NULL, note TEXT,
+    UNIQUE (actuator_id, time_h, fault));
+CREATE INDEX tests_by_actuator ON tests (actuator_id, time_h);
+INSERT INTO schema_version VALUES (1, '2026-11-20T00:00:00+00:00');
+INSERT INTO tests (actuator_id, time_h, wall_time_utc, k_gm, k_fsj, k_bkl, std_gm, std_fsj, std_bkl, method,
+    source_hash, software_version) VALUES ('A', 0, 'w', 0.1, 0.0, 0.0, 0.002, 0.002, 0.002, 'import', 'h0', '0.1'),
+    ('A', 50, 'w', 0.2, 0.0, 0.0, 0.002, 0.002, 0.002, 'import', 'h1', '0.1');
+INSERT INTO maintenance (actuator_id, time_h, fault, action, wall_time_utc) VALUES ('A', 50, 'gm', 'repair', 'w');
+PRAGMA user_version = 1;
+"""
+
+
+def test_a_version_1_history_is_read_as_is_and_migrated_when_written(tmp_path):
+    db = tmp_path / "v1.sqlite"
+    con = sqlite3.connect(db)
+    con.executescript(V1_TESTS)
+    con.close()
+    before = snapshot(db)
+    with HistoryStore(db, readonly=True) as st:           # read: nothing written, not even the migration
+        assert st.schema_version == 1 and len(st.list_tests()) == 2
+    assert snapshot(db) == before
+    with HistoryStore(db) as st:
+        assert st.schema_version == SCHEMA_VERSION
+        assert snapshot(db) == before                     # every row and maintenance kept, ids too
+        assert st.import_csv(_csv(tmp_path, "A,100,0.3,0,0\n")) == 1
+        h = st.history().actuators["A"]
+    assert h.std[:2, 0].tolist() == [0.002, 0.002] and h.std[2, 0] > 0 and h.repairs == [(50.0, "gm", "repair")]
+    con = sqlite3.connect(db)
+    assert [v for v, _ in con.execute("SELECT * FROM schema_version ORDER BY version")] == [1, SCHEMA_VERSION]
+    assert con.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+    assert con.execute("SELECT name FROM sqlite_master WHERE name = 'tests_by_actuator'").fetchone()
+    con.close()
+
+
+def _csv(tmp_path, rows, header="actuator_id,time_h,k_gm,k_fsj,k_bkl"):
+    p = tmp_path / f"h{abs(hash(rows))}.csv"
+    p.write_text(header + "\n" + rows)
+    return p
+
+
+def test_a_row_imported_again_with_its_std_adds_nothing(tmp_path):
+    """The same test (actuator, time, three K) hashed otherwise -- its row now has a std -- is the
+    same test: nothing added, not a duplicate-row error."""
+    with HistoryStore(tmp_path / "h.sqlite") as st:
+        assert st.import_csv(_csv(tmp_path, "A,0,0.1,0,0\nA,50,0.2,0,0\n")) == 2
+        assert st.import_csv(_csv(tmp_path, "A,0,0.1,0,0,0.01,0.01,0.01\nA,50,0.2,0,0,0.01,0.01,0.01\n"
+                                  "A,100,0.3,0,0,0.01,0.01,0.01\n",
+                                  "actuator_id,time_h,k_gm,k_fsj,k_bkl,std_gm,std_fsj,std_bkl")) == 1
+        with pytest.raises(PrognosticsError, match="duplicate row"):      # another K at that time is not
+            st.import_csv(_csv(tmp_path, "A,100,0.31,0,0\n"))
 
 
 def test_import_csv_twice_and_bad_csv(tmp_path):
@@ -145,9 +232,9 @@ def test_import_csv_twice_and_bad_csv(tmp_path):
     with HistoryStore(db) as st:
         assert st.import_csv(good) == 3
         assert st.import_csv(good) == 0
-        # a missing std is the documented default
-        b = st.list_tests("B")[0]
-        assert b["std_gm"] == st.settings.history.default_std
+        # a missing std is stored as not stated, and read as the documented floor (one test)
+        assert st.list_tests("B")[0]["std_gm"] is None
+        assert st.history().actuators["B"].std[0, 0] == st.settings.history.default_std
     cases = {
         "actuator_id,time_h,k_gm,k_fsj\nA,0,0,0\n": "missing column",
         "actuator_id,time_h,k_gm,k_fsj,k_bkl\nA,0,0,0,x\n": "k_bkl 'x' is not a number",

@@ -72,9 +72,8 @@ def cmd_history_add(args) -> int:
     window = tid if tid is not None and len(ids) > 1 else None
     digest = recording_hash(path, window)
     with HistoryStore(db, settings) as st:
-        known = [t for t in st.list_tests() if t["source_hash"] == digest]
-        if known:   # before the diagnosis: the same recording twice adds nothing
-            t = known[0]
+        t = st.find_recording(digest)
+        if t is not None:   # before the diagnosis: the same recording twice adds nothing
             if t["actuator_id"] != args.actuator:
                 raise UsageError(f"{path} is already in the history for actuator {t['actuator_id']}, "
                                  f"not {args.actuator}")
@@ -112,7 +111,9 @@ def cmd_history_list(args) -> int:
     print(f"{'actuator':12s} {'time_h':>9s} " + " ".join(f"{'K_' + n.upper():>15s}" for n in FAULT_KEYS)
           + f" {'usage':>8s}  method         source")
     for t in rows:
-        ks = " ".join(f"{t['k_' + n]:7.4f}+-{t['std_' + n]:.4f}" for n in FAULT_KEYS)
+        # a std not stated (an import without std columns) is estimated when prognose reads it
+        ks = " ".join(f"{t['k_' + n]:7.4f}+-" + ("  est " if t["std_" + n] is None else f"{t['std_' + n]:.4f}")
+                      for n in FAULT_KEYS)
         use = "" if t["usage"] is None else f"{t['usage']:g}"
         print(f"{t['actuator_id']:12s} {_fmt_time(t['time_h'])} {ks} {use:>8s}  {t['method'] or '':14s} "
               f"{Path(t['source_path']).name if t['source_path'] else ''}")
@@ -130,7 +131,7 @@ def cmd_history_import(args) -> int:
         recs = read_history_csv(args.file, settings)
         notes = st.usage_notes(recs)
         n = st.import_csv(args.file, recs)
-        total = len(st.list_tests())
+        total = st.count_tests()
     for note in notes if n else []:
         print(f"note: {note}", file=sys.stderr)
     print(f"imported {n} new test(s) from {args.file} into {db} ({total} in all)")

@@ -52,7 +52,8 @@ class ThresholdSettings:
 @dataclass(frozen=True)
 class HistorySettings:
     default_path: str = _f("path", "history database used when none is given")
-    default_std: float = _f("-", "1-sd of K for a HISTORY.csv row without std columns")
+    default_std: float = _f("-", "floor of the 1-sd of K estimated for a test without one "
+                               "(a HISTORY.csv row without std columns)")
 
 
 @dataclass(frozen=True)

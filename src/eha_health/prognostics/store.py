@@ -8,12 +8,16 @@ CLI (:mod:`eha_health.cli.prognostics`): ``eha-health history add RUN.csv|BAG.mc
 :func:`default_history_path`. Bad input raises :class:`PrognosticsError` (a ValueError)
 with one line naming the problem (exit code 2); the store is then unchanged.
 
-Schema version 1 (``PRAGMA user_version`` and table ``schema_version``):
+Schema version 2 (``PRAGMA user_version`` and table ``schema_version``; a version-1 file is
+migrated when first opened for writing, :meth:`HistoryStore._migrate`):
 
 * ``tests``: one row per diagnosis: ``actuator_id``, ``time_h`` (operating hours, the
   prognostics clock), ``wall_time_utc`` (ISO 8601), ``sim_time_s`` (ROS / simulated stamp
   [s], optional), ``usage`` and ``usage_unit`` (flight hours or cycles, optional), ``k_gm,
-  k_fsj, k_bkl`` in [0, ``physics.faults.FAULT_UPPER``] and ``std_gm, std_fsj, std_bkl`` >= 0, ``method``, ``cost`` and
+  k_fsj, k_bkl`` in [0, ``physics.faults.FAULT_UPPER``] and ``std_gm, std_fsj, std_bkl`` >= 0
+  or NULL (not stated: a HISTORY.csv row without std; estimated when read, from the actuator's
+  whole series, :func:`fill_missing_std`; version 1 stored the estimate of the imported file
+  alone), ``method``, ``cost`` and
   ``fit_rms`` (JSON, per-channel RMS: fit quality), ``discrepancy`` (verdict), ``warnings``
   (JSON), ``source_path``, ``source_hash`` (sha256 of the recording -- each test window of a bag
   of several with its window id, :func:`recording_hash` --, or of the diagnosis inputs when there
@@ -28,6 +32,7 @@ killed mid-append leaves the previous state (SQLite's atomic commit), never a pa
 """
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import hashlib
 import json
@@ -45,13 +50,12 @@ from ..signals.table import csv_rows
 from .config import PrognosticsError, Settings, load_settings
 from .scatter import noise_estimate
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 MAINT_FAULTS = FAULT_KEYS + ("all",)
 ACTIONS = ("repair", "replace")
 
-_SCHEMA = f"""
-CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL, applied_utc TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS tests (
+_TESTS = f"""
+CREATE TABLE IF NOT EXISTS {{name}} (
     id INTEGER PRIMARY KEY,
     actuator_id TEXT NOT NULL CHECK (length(actuator_id) > 0),
     time_h REAL NOT NULL CHECK (time_h >= 0),
@@ -62,9 +66,9 @@ CREATE TABLE IF NOT EXISTS tests (
     k_gm REAL NOT NULL CHECK (k_gm BETWEEN 0 AND {FAULT_UPPER!r}),
     k_fsj REAL NOT NULL CHECK (k_fsj BETWEEN 0 AND {FAULT_UPPER!r}),
     k_bkl REAL NOT NULL CHECK (k_bkl BETWEEN 0 AND {FAULT_UPPER!r}),
-    std_gm REAL NOT NULL CHECK (std_gm >= 0),
-    std_fsj REAL NOT NULL CHECK (std_fsj >= 0),
-    std_bkl REAL NOT NULL CHECK (std_bkl >= 0),
+    std_gm REAL CHECK (std_gm >= 0),
+    std_fsj REAL CHECK (std_fsj >= 0),
+    std_bkl REAL CHECK (std_bkl >= 0),
     method TEXT,
     cost REAL,
     fit_rms TEXT,
@@ -74,7 +78,11 @@ CREATE TABLE IF NOT EXISTS tests (
     source_hash TEXT NOT NULL UNIQUE,
     software_version TEXT NOT NULL,
     UNIQUE (actuator_id, time_h)
-);
+)"""
+_INDEX = "CREATE INDEX IF NOT EXISTS tests_by_actuator ON tests (actuator_id, time_h)"
+_SCHEMA = f"""
+CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL, applied_utc TEXT NOT NULL);
+{_TESTS.format(name="tests")};
 CREATE TABLE IF NOT EXISTS maintenance (
     id INTEGER PRIMARY KEY,
     actuator_id TEXT NOT NULL,
@@ -85,7 +93,7 @@ CREATE TABLE IF NOT EXISTS maintenance (
     note TEXT,
     UNIQUE (actuator_id, time_h, fault)
 );
-CREATE INDEX IF NOT EXISTS tests_by_actuator ON tests (actuator_id, time_h);
+{_INDEX};
 """
 
 K_COLUMNS = tuple(f"k_{f}" for f in FAULT_KEYS)
@@ -132,7 +140,8 @@ def sha256_json(obj) -> str:
 
 @dataclass
 class HealthRecord:
-    """One diagnosis to append (K and std in the order gm, fsj, bkl)."""
+    """One diagnosis to append (K and std in the order gm, fsj, bkl; a std None: not stated,
+    estimated when the history is read, :func:`fill_missing_std`)."""
     actuator_id: str
     time_h: float
     k: tuple
@@ -153,12 +162,14 @@ class HealthRecord:
     def content_hash(self) -> str:
         """Hash of the diagnosis inputs when there is no recording file."""
         return sha256_json({"actuator_id": self.actuator_id, "time_h": self.time_h,
-                            "k": [float(v) for v in self.k], "std": [float(v) for v in self.std],
+                            "k": [float(v) for v in self.k],
+                            "std": [None if v is None else float(v) for v in self.std],
                             "usage": self.usage, "method": self.method})
 
     def row(self) -> tuple:
         return (self.actuator_id, float(self.time_h), self.wall_time_utc or _now(), self.sim_time_s,
-                self.usage, self.usage_unit, *map(float, self.k), *map(float, self.std), self.method,
+                self.usage, self.usage_unit, *map(float, self.k),
+                *(None if v is None else float(v) for v in self.std), self.method,
                 self.cost, json.dumps(self.fit_rms) if self.fit_rms is not None else None, self.discrepancy,
                 json.dumps(self.warnings) if self.warnings is not None else None, self.source_path,
                 self.source_hash or self.content_hash(), self.software_version or _version())
@@ -173,6 +184,8 @@ def _check_record(r: HealthRecord, where: str) -> None:
         if not isinstance(v, (int, float)) or not math.isfinite(v) or not 0.0 <= v <= FAULT_UPPER:
             raise PrognosticsError(f"{where}: k_{name}={v!r} outside [0, {FAULT_UPPER}]")
     for name, v in zip(FAULT_KEYS, r.std):
+        if v is None:       # not stated: estimated when read
+            continue
         if not isinstance(v, (int, float)) or not math.isfinite(v):
             raise PrognosticsError(f"{where}: std_{name} is {v!r} (standard errors must be finite)")
         if v < 0:
@@ -227,13 +240,15 @@ class History:
     actuators: dict = field(default_factory=dict)   # id -> ActuatorHistory
 
 
-def _history_from_records(recs: list[HealthRecord], repairs: list[tuple]) -> History:
+def _history_from_records(recs: list[HealthRecord], repairs: list[tuple], floor: float) -> History:
+    """Arrays per actuator; a std not stated is :func:`fill_missing_std`'s (at least ``floor``)."""
     by: dict[str, list[HealthRecord]] = {}
     for r in recs:
         by.setdefault(r.actuator_id, []).append(r)
     h = History()
     for a, rs in by.items():
         rs = sorted(rs, key=lambda r: r.time_h)
+        fill_missing_std(rs, floor)
         h.actuators[a] = ActuatorHistory(
             a, np.array([r.time_h for r in rs], float), np.array([r.k for r in rs], float),
             np.array([r.std for r in rs], float),
@@ -254,8 +269,8 @@ def _float(text: str, where: str, name: str) -> float:
 
 def read_history_csv(path: str | Path, settings: Settings | None = None) -> list[HealthRecord]:
     """Rows of a HISTORY.csv: ``actuator_id, time_h, k_gm, k_fsj, k_bkl`` [+ ``std_gm, std_fsj,
-    std_bkl, usage``]. Validated row by row. A missing std is the scatter of that actuator's
-    series about a smooth trend (:func:`noise_estimate`), at least ``history.default_std``."""
+    std_bkl, usage``]. Validated row by row. A missing std stays None: the history fills it when
+    read (:func:`fill_missing_std`), and the store keeps it NULL."""
     s = settings or load_settings()
     path = Path(path)
     if path.is_dir():
@@ -275,34 +290,30 @@ def read_history_csv(path: str | Path, settings: Settings | None = None) -> list
         std = tuple(_float(row[f"std_{n}"], where, f"std_{n}") if row.get(f"std_{n}") not in (None, "")
                     else None for n in FAULT_KEYS)
         usage = _float(row["usage"], where, "usage") if row.get("usage") not in (None, "") else None
-        r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k,
-                         tuple(0.0 if v is None else v for v in std), usage=usage, method="import")
+        r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k, std,
+                         usage=usage, method="import")
         _check_record(r, where)
-        r.std = std
         r.source_path = str(path)
         recs.append((where, r))
     if not recs:
         raise PrognosticsError(f"{path}: the history is empty (no rows)")
     _check_order([(w, r) for w, r in recs])
-    out = [r for _, r in recs]
-    _fill_missing_std(out, s.history.default_std)
-    return out
+    return [r for _, r in recs]
 
 
-def _fill_missing_std(recs: list[HealthRecord], floor: float) -> None:
-    """A HISTORY.csv row without a std: the scatter of that actuator's series (at least ``floor``)."""
-    by: dict[str, list[HealthRecord]] = {}
-    for r in recs:
-        by.setdefault(r.actuator_id, []).append(r)
-    for rs in by.values():
-        for i in range(3):
-            if all(r.std[i] is not None for r in rs):
-                continue
-            est = noise_estimate([r.k[i] for r in rs])
-            fill = max(floor, est) if math.isfinite(est) else floor
-            for r in rs:
-                if r.std[i] is None:
-                    r.std = tuple(fill if j == i else v for j, v in enumerate(r.std))
+def fill_missing_std(recs: list[HealthRecord], floor: float) -> None:
+    """Standard errors not stated, in place: the scatter of the actuator's whole series about a
+    smooth trend (:func:`noise_estimate`, 1.4826 MAD of second differences / sqrt(6)), at least
+    ``floor`` (``history.default_std``). ``recs``: one actuator's tests in time order. Estimated
+    when read, from every test held -- a test imported alone has no scatter of its own."""
+    for i in range(3):
+        if all(r.std[i] is not None for r in recs):
+            continue
+        est = noise_estimate(np.array([r.k[i] for r in recs], float))
+        fill = max(floor, est) if math.isfinite(est) else floor
+        for r in recs:
+            if r.std[i] is None:
+                r.std = tuple(fill if j == i else v for j, v in enumerate(r.std))
 
 
 def _check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = None) -> None:
@@ -381,18 +392,44 @@ class HistoryStore:
         self.conn.execute("PRAGMA synchronous=FULL")
         self.conn.execute("PRAGMA foreign_keys=ON")
         if ver == 0:
-            self.conn.execute("BEGIN IMMEDIATE")
-            try:
+            with self._immediate():
                 for stmt in filter(str.strip, _SCHEMA.split(";")):
                     self.conn.execute(stmt)
-                self.conn.execute("INSERT INTO schema_version VALUES (?, ?)", (SCHEMA_VERSION, _now()))
-                self.conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
-                self.conn.execute("COMMIT")
-            except BaseException:
-                self.conn.execute("ROLLBACK")
-                raise
+                self._stamp_version()
         else:
             self._check_columns()
+            if ver < SCHEMA_VERSION:
+                self._migrate()
+
+    def _migrate(self) -> None:
+        """Version 1 -> 2: the std columns may be NULL (not stated). SQLite cannot change a
+        column's constraint, so the table is rebuilt -- created, copied, dropped, renamed -- in one
+        transaction (a writer killed midway leaves version 1 as it was). The stds a version-1
+        import estimated stay as stored."""
+        with self._immediate():
+            if self.schema_version == 1:      # not migrated meanwhile by another writer
+                cols = ",".join(("id",) + TEST_COLUMNS)
+                self.conn.execute(_TESTS.format(name="tests_v2"))
+                self.conn.execute(f"INSERT INTO tests_v2 ({cols}) SELECT {cols} FROM tests")
+                self.conn.execute("DROP TABLE tests")
+                self.conn.execute("ALTER TABLE tests_v2 RENAME TO tests")
+                self.conn.execute(_INDEX)
+                self._stamp_version()
+
+    @contextlib.contextmanager
+    def _immediate(self):
+        """One write transaction (BEGIN IMMEDIATE): all of it is committed, or none of it."""
+        self.conn.execute("BEGIN IMMEDIATE")
+        try:
+            yield
+            self.conn.execute("COMMIT")
+        except BaseException:
+            self.conn.execute("ROLLBACK")
+            raise
+
+    def _stamp_version(self) -> None:
+        self.conn.execute("INSERT INTO schema_version VALUES (?, ?)", (SCHEMA_VERSION, _now()))
+        self.conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
 
     def _check_columns(self) -> None:
         """A damaged schema can parse and pass the integrity check yet miss a column (fuzzing found it)."""
@@ -427,6 +464,23 @@ class HistoryStore:
         return sim_time_s is not None and self.conn.execute(
             "SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ? AND sim_time_s = ?",
             (actuator_id, float(time_h), float(sim_time_s))).fetchone() is not None
+
+    def holds_values(self, r: HealthRecord) -> bool:
+        """Whether the store has a test of the same actuator at the same time with the same three
+        K: the same test, hashed otherwise (a HISTORY.csv row imported again after a std column
+        was added to it, or imported under schema version 1, whose hash held the estimated std)."""
+        return self.conn.execute(
+            "SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ? AND k_gm = ? AND k_fsj = ? AND k_bkl = ?",
+            (r.actuator_id, float(r.time_h), *map(float, r.k))).fetchone() is not None
+
+    def find_recording(self, source_hash: str) -> dict | None:
+        """The stored test with this source hash (actuator_id, time_h), or None."""
+        row = self.conn.execute("SELECT actuator_id, time_h FROM tests WHERE source_hash = ?",
+                                (source_hash,)).fetchone()
+        return None if row is None else {"actuator_id": row[0], "time_h": row[1]}
+
+    def count_tests(self) -> int:
+        return int(self.conn.execute("SELECT COUNT(*) FROM tests").fetchone()[0])
 
     def check_next_time(self, actuator_id: str, time_h: float, sim_time_s: float | None, where: str) -> None:
         """Raise the error :meth:`add_tests` would give a test of ``actuator_id`` at ``time_h``
@@ -470,7 +524,7 @@ class HistoryStore:
 
         A record whose ``source_hash`` is already stored for the same actuator adds nothing
         (the same recording twice); for another actuator it is an error. So does a record of a test
-        the store holds by another path (:meth:`holds_test`).
+        the store holds by another path (:meth:`holds_test`, :meth:`holds_values`).
         """
         self._writable()
         wheres = wheres or [f"test {i + 1} (actuator {r.actuator_id}, time_h={r.time_h})"
@@ -478,8 +532,7 @@ class HistoryStore:
         for w, r in zip(wheres, records):
             _check_record(r, w)
             r.source_hash = r.source_hash or r.content_hash()
-        self.conn.execute("BEGIN IMMEDIATE")
-        try:
+        with self._immediate():
             known = {}
             hashes = [r.source_hash for r in records]
             for i in range(0, len(hashes), 500):
@@ -493,17 +546,13 @@ class HistoryStore:
                     raise PrognosticsError(f"{w}: this recording is already in the history for actuator {owner}")
                 if owner is not None or r.source_hash in seen:
                     continue
-                if self.holds_test(r.actuator_id, r.time_h, r.sim_time_s):
+                if self.holds_test(r.actuator_id, r.time_h, r.sim_time_s) or self.holds_values(r):
                     continue
                 seen.add(r.source_hash)
                 new.append((w, r))
             _check_order(new, self._latest())
             q = f"INSERT INTO tests ({','.join(TEST_COLUMNS)}) VALUES ({','.join('?' * len(TEST_COLUMNS))})"
             self.conn.executemany(q, [r.row() for _, r in new])
-            self.conn.execute("COMMIT")
-        except BaseException:
-            self.conn.execute("ROLLBACK")
-            raise
         return len(new)
 
     def add_diagnosis(self, diagnosis, actuator_id: str, time_h: float, usage: float | None = None,
@@ -562,18 +611,13 @@ class HistoryStore:
         if time_h > latest[actuator_id]:
             raise PrognosticsError(f"repair at time_h={time_h:g} is in the future: the latest test of "
                                    f"{actuator_id} is at {latest[actuator_id]:g} h (append the post-repair test first)")
-        self.conn.execute("BEGIN IMMEDIATE")
         try:
-            self.conn.execute("INSERT INTO maintenance (actuator_id, time_h, fault, action, wall_time_utc, note) "
-                              "VALUES (?, ?, ?, ?, ?, ?)", (actuator_id, float(time_h), fault, action, _now(), note))
-            self.conn.execute("COMMIT")
+            with self._immediate():
+                self.conn.execute("INSERT INTO maintenance (actuator_id, time_h, fault, action, wall_time_utc, note) "
+                                  "VALUES (?, ?, ?, ?, ?, ?)", (actuator_id, float(time_h), fault, action, _now(), note))
         except sqlite3.IntegrityError:
-            self.conn.execute("ROLLBACK")
             raise PrognosticsError(f"duplicate maintenance: {actuator_id} {fault} already recorded at "
                                    f"time_h={time_h:g}") from None
-        except BaseException:
-            self.conn.execute("ROLLBACK")
-            raise
 
     # ------------------------------------------------------------------ reads
     def actuator_ids(self) -> list[str]:
@@ -614,7 +658,7 @@ class HistoryStore:
         recs = [HealthRecord(a, t, (g, f, b), (sg, sf, sb), usage=u) for a, t, g, f, b, sg, sf, sb, u in
                 self.conn.execute(q)]
         reps = list(self.conn.execute("SELECT actuator_id, time_h, fault, action FROM maintenance"))
-        return _history_from_records(recs, reps)
+        return _history_from_records(recs, reps, self.settings.history.default_std)
 
 
 def as_history(obj, settings: Settings | None = None) -> History:
@@ -629,7 +673,8 @@ def as_history(obj, settings: Settings | None = None) -> History:
     if not path.is_file():
         raise PrognosticsError(f"{path}: no such history file")
     if path.suffix.lower() == ".csv":
-        return _history_from_records(read_history_csv(path, settings), [])
+        s = settings or load_settings()
+        return _history_from_records(read_history_csv(path, s), [], s.history.default_std)
     with HistoryStore(path, settings, readonly=True) as st:
         return st.history()
 
