@@ -23,12 +23,18 @@ passage. Cases:
                  0.03, a test every 100 h, cut at 50-85 %
   young          healthy_gamma tested every 10 h, cut 60-150 h after the wear began: young wear
                  (another black-box probe of 2026-11-29 found medians 0.36x and false WARNs)
+  partial_repair gamma (nu 0.001, linear mean); at a uniform 30-55 % of the life K falls by
+                 0.1-0.2 (a partial repair nobody recorded) and wear goes on at its rate; a test
+                 every 40 h, cut at 65-90 % of the (later) end of life
+  partial_t2     the same on gamma_t2's mean ~ t^2 (nu 0.001)
 
 Prints per case the line of `rul_probe.report` (units given a RUL, coverage of the 5-95 %
 interval with a unit without a RUL a miss, medians within +-20 %, median/true quantiles), how
 many of them rest on the fleet prior, K_GM / K_BKL given a RUL where any is (a false alarm), and
 the false WARNs: P(failure within the next 50 h) >= 5 % where the true RUL exceeds 100 h. For ``two_stage``, two more lines split the coverage by whether the history ends before the rate
-change: nothing in such a history shows the change to come. docs/prognostics.md ("Wear processes
+change: nothing in such a history shows the change to come. For the partial repairs, one more:
+how many say ``unrecorded_repair_h`` within 2 tests of the fall, and how many set tests aside
+instead. docs/prognostics.md ("Wear processes
 and regime changes") quotes this script.
 """
 import tempfile
@@ -52,6 +58,8 @@ CASES = {
     "healthy_n03": ("healthy_gamma", 0.03, 50.0, (0.5, 0.85)),
     "exp_n03_100h": ("exp", 0.03, 100.0, (0.5, 0.85)),
     "young": ("healthy_gamma", 0.005, 10.0, ("after onset", 60.0, 150.0)),
+    "partial_repair": ("partial_repair", 0.005, 40.0, (0.65, 0.9)),
+    "partial_t2": ("partial_t2", 0.005, 40.0, (0.65, 0.9)),
 }
 
 
@@ -61,15 +69,21 @@ def _gamma_steps(rng: np.random.Generator, mean_steps: np.ndarray, nu: float) ->
 
 
 def latent_path(law: str, rng: np.random.Generator, life: float) -> tuple[np.ndarray, float, float | None]:
-    """(K on a 1-h grid, first passage of THRESHOLD [h], regime change [h] or None)."""
+    """(K on a 1-h grid, first passage of THRESHOLD [h], regime change or partial repair [h] or None)."""
     n = int(10 * life) + 10
     t = np.arange(n, dtype=float)
     rate = THRESHOLD / life                                   # K / h of the mean path
-    change = None
+    change = drop = None
+    if law.startswith("partial"):
+        change, drop = rng.uniform(0.3, 0.55) * life, rng.uniform(0.1, 0.2)
+        law = "gamma" if law == "partial_repair" else "gamma_t2"
+        nu = 0.001
+    else:
+        nu = None
     if law == "gamma":
-        inc = _gamma_steps(rng, np.full(n - 1, rate), rng.uniform(0.001, 0.006))
+        inc = _gamma_steps(rng, np.full(n - 1, rate), nu or rng.uniform(0.001, 0.006))
     elif law == "gamma_t2":
-        inc = _gamma_steps(rng, np.diff(THRESHOLD * (t / life) ** 2), rng.uniform(0.001, 0.004))
+        inc = _gamma_steps(rng, np.diff(THRESHOLD * (t / life) ** 2), nu or rng.uniform(0.001, 0.004))
     elif law == "wiener":
         vol = rng.uniform(0.005, 0.02) / 10.0                 # K per sqrt(h)
         inc = rate + vol * rng.standard_normal(n - 1)
@@ -90,6 +104,8 @@ def latent_path(law: str, rng: np.random.Generator, life: float) -> tuple[np.nda
     else:
         raise ValueError(law)
     k = np.concatenate([[0.0], np.cumsum(inc)])
+    if drop is not None:
+        k = np.where(t >= change, np.maximum(k - drop, 0.0), k)
     hit = np.nonzero(k >= THRESHOLD)[0]
     return k, (float(t[hit[0]]) if len(hit) else np.inf), change
 
@@ -112,7 +128,8 @@ def fleet(case: str, units: int, rng: np.random.Generator) -> tuple[list[dict], 
             rows.append({"actuator_id": u, "time_h": float(ti), "k_gm": float(y[0]), "k_fsj": float(y[1]),
                          "k_bkl": float(y[2]), "std_gm": noise, "std_fsj": noise, "std_bkl": noise})
         truth[u] = eol - times[-1]
-        changes[u] = bool(times[-1] < change) if law == "two_stage" else None
+        changes[u] = (bool(times[-1] < change) if law == "two_stage" else
+                      (change, interval) if law.startswith("partial") else None)
     return rows, truth, changes
 
 
@@ -132,7 +149,13 @@ def main() -> None:
             warn = sum((got[u]["p_fail_next"] if got[u]["p_fail_next"] is not None else
                         got[u].get("p_fail_next_min") or 0.0) >= 0.05 for u in far)
             print(f"  false WARN (P(failure within 50 h) >= 5 %, true RUL > 100 h): {warn} of {len(far)}", flush=True)
-            if any(v is not None for v in before.values()):
+            if case.startswith("partial"):
+                said = sum(abs((got[u].get("unrecorded_repair_h") or -1e9) - before[u][0]) <= 2 * before[u][1]
+                           for u in truth)
+                aside = sum(bool(got[u].get("outliers_h")) for u in truth)
+                print(f"  the partial repair said (unrecorded_repair_h within 2 tests of it): {said} of {len(truth)}; "
+                      f"tests set aside as failed diagnoses: {aside}", flush=True)
+            elif any(v is not None for v in before.values()):
                 for label, keep in (("history ends before the change", True), ("history ends after it", False)):
                     sub = [u for u in truth if before[u] is keep]
                     inside = [(got[u]["rul_p05_h"] or 0.0) <= truth[u] <= (got[u]["rul_p95_h"] or np.inf)

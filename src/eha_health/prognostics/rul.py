@@ -409,7 +409,7 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
     if n_tests:
         p.k_last, p.std_last = float(k[-1]), float(std[-1])
     std = np.maximum(std, s.prognosis.min_std)     # no diagnosis is exact; a zero variance is singular
-    fall = last_persistent_fall(k, std, s.prognosis.outlier_sigma, s.prognosis.repair_fall)
+    fall = last_persistent_fall(time_h, k, std, s.prognosis.outlier_sigma, s.prognosis.repair_fall)
     if fall is not None:
         p.unrecorded_repair_h = float(time_h[fall])
         time_h, k, std = time_h[fall:], k[fall:], std[fall:]
