@@ -98,6 +98,8 @@ def test_bench_end_to_end_tiny(tmp_path):
     assert (tmp_path / "b.png").read_bytes()[:4] == b"\x89PNG"
     m = r["model"]
     assert 0.0 <= m["coverage90"] <= 1.0 and set(r["targets"]) and "ratios_model_to_naive" in r
+    f = m["p_fail_next"]                     # the unit's last test is within a check of its end
+    assert f["points"] == r["points"] and f["events"] >= 1 and sum(c["n"] for c in f["reliability"]) == f["points"]
     r2 = bench_rul(s, cache_dir=tmp_path / "cache", plot=None, progress=None)
     assert r2["diagnoses"]["cached"] == r2["diagnoses"]["diagnoses"]
     assert r2["model"] == r["model"] and r2["naive"] == r["naive"]
@@ -110,6 +112,28 @@ def test_bench_end_to_end_tiny(tmp_path):
     text = doc.read_text()
     assert text.startswith("# title\n") and text.endswith(f"{MARK_END}\ntail\n") and "old figures" not in text
     assert "`eha-health bench rul --units 1`" in text and format_result(r) in text
+
+
+def test_p_fail_next_is_scored_as_a_warning():
+    """Brier score and skill, reliability and the WARN / ERROR counts of p_fail_next, by their
+    definitions (Brier 1950): the event is a failure before the next check."""
+    from eha_health.bench.rul import UnitScore, failure_warning
+    from eha_health.prognostics.metrics import brier, reliability
+    assert brier([0.0, 1.0, 0.0], [0, 1, 0]) == (0.0, 1.0)                  # certain and right
+    assert brier([1 / 3] * 3, [0, 1, 0])[1] == pytest.approx(0.0)           # the climatology: no skill
+    assert brier([0.5, 0.5], [1, 1])[1] != brier([0.5, 0.5], [1, 1])[1]     # one outcome only: NaN
+    cells = reliability(np.array([0.01, 0.02, 0.1, 0.9, 1.0]), np.array([0, 0, 1, 1, 0]))
+    assert [c["n"] for c in cells] == [2, 1, 0, 2] and cells[3]["observed"] == 0.5
+    assert cells[0]["mean_p"] == pytest.approx(0.015) and cells[2]["mean_p"] is None
+
+    r_true = np.array([500.0, 300.0, 100.0, 40.0])       # checks every 60 h: the last point fails
+    sc = UnitScore("U", 1000.0, np.arange(4.0), r_true, r_true, r_true, r_true, np.full(4, 0.5), r_true,
+                   np.zeros(4, bool), np.ones(4, bool), np.array([0.0, 0.1, 0.3, 0.9]))
+    f = failure_warning([sc], 60.0, 0.05, 0.2)
+    assert (f["events"], f["points"]) == (1, 4)
+    assert f["warn"] == {"p": 0.05, "events_raised": 1, "false": 1, "far_points": 2}   # 300 h away: false
+    assert f["error"] == {"p": 0.2, "events_raised": 1, "false": 0, "far_points": 2}   # 100 h: not 2 checks
+    assert f["brier"] == pytest.approx((0.01 + 0.09 + 0.01) / 4)
 
 
 def test_bench_figures_carry_their_sampling_intervals():

@@ -365,6 +365,7 @@ class UnitScore:
     naive: np.ndarray
     fleet_prior: np.ndarray  # bool per point
     dominant_ok: np.ndarray  # predicted dominant fault == the true first fault
+    p_next: np.ndarray | None = None   # predicted P(failure before the next check), one interval on
 
 
 def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float],
@@ -406,6 +407,8 @@ def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float],
         for k in ks:
             ov = overall(preds[(ui, k)], k + 1)
             rt = u.eol_h - u.test_h[k]
+            # no RUL (no trend): no failure expected before the next check
+            p_next = ov.p_fail(b.test_interval_h) if ov.samples is not None else 0.0
             if ov.samples is None:
                 q = (np.inf, np.inf, np.inf)
                 pit = 0.0
@@ -417,10 +420,10 @@ def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float],
                      for fi, f in enumerate(FAULTS))
             fp = any(p.fleet_prior for p in preds[(ui, k)].values())
             dom = getattr(ov, "dominant", None) == u.eol_fault
-            rows.append((u.test_h[k], rt, *q, pit, nv, fp, dom))
-        a = np.array(rows, dtype=float).reshape(-1, 9)
+            rows.append((u.test_h[k], rt, *q, pit, nv, fp, dom, p_next))
+        a = np.array(rows, dtype=float).reshape(-1, 10)
         scores.append(UnitScore(u.actuator_id, u.eol_h, a[:, 0], a[:, 1], a[:, 2], a[:, 3], a[:, 4], a[:, 5],
-                                a[:, 6], a[:, 7].astype(bool), a[:, 8].astype(bool)))
+                                a[:, 6], a[:, 7].astype(bool), a[:, 8].astype(bool), a[:, 9]))
     return scores
 
 
@@ -466,8 +469,27 @@ def _unit_bootstrap_ci(scores: list[UnitScore], seed: int = 0) -> list[float] | 
     return [float(res.confidence_interval.low), float(res.confidence_interval.high)]
 
 
-def score_fleet(scores: list[UnitScore], b: BenchSettings) -> dict:
-    """Fleet metrics, ours and the naive baseline's, and their ratios."""
+def failure_warning(scores: list[UnitScore], interval_h: float, warn: float, error: float) -> dict:
+    """How p_fail_next does as a warning: the event is a failure before the next check (true RUL
+    <= ``interval_h``); Brier score and skill, reliability, and per level (the monitor's WARN and
+    ERROR, ``prognosis.warn_p_fail`` / ``error_p_fail``) the events it raised and the points it
+    raised where the true RUL exceeds two intervals (false: the failure is two checks away)."""
+    from ..prognostics import metrics as M
+    p = np.concatenate([sc.p_next for sc in scores])
+    rt = np.concatenate([sc.r_true for sc in scores])
+    y, far = rt <= interval_h, rt > 2 * interval_h
+    bs, skill = M.brier(p, y)
+    out = {"interval_h": interval_h, "points": int(len(p)), "events": int(y.sum()), "brier": bs,
+           "brier_skill": skill, "reliability": M.reliability(p, y)}
+    for name, level in (("warn", warn), ("error", error)):
+        out[name] = {"p": level, "events_raised": int(np.sum(y & (p >= level))),
+                     "false": int(np.sum(far & (p >= level))), "far_points": int(far.sum())}
+    return out
+
+
+def score_fleet(scores: list[UnitScore], b: BenchSettings, warn: float = 0.05, error: float = 0.20) -> dict:
+    """Fleet metrics, ours and the naive baseline's, and their ratios; ``warn`` / ``error``: the
+    p_fail_next levels of :func:`failure_warning`."""
     from ..prognostics import metrics as M
     out: dict = {"units": len(scores), "points": int(sum(len(sc.t_h) for sc in scores))}
     for name, pick in (("model", lambda sc: sc.p50), ("naive", lambda sc: sc.naive)):
@@ -504,6 +526,8 @@ def score_fleet(scores: list[UnitScore], b: BenchSettings) -> dict:
     out["model"]["coverage80"] = float(np.mean((pit >= 0.10) & (pit <= 0.90)))
     out["model"]["fleet_prior_points"] = int(sum(sc.fleet_prior.sum() for sc in scores))
     out["model"]["dominant_fault_right"] = float(np.mean(np.concatenate([sc.dominant_ok for sc in scores])))
+    if all(sc.p_next is not None for sc in scores):
+        out["model"]["p_fail_next"] = failure_warning(scores, b.test_interval_h, warn, error)
     m, n = out["model"], out["naive"]
 
     def ratio(a, c):
@@ -527,11 +551,12 @@ def score_fleet(scores: list[UnitScore], b: BenchSettings) -> dict:
 
 def plot_bench(units: list[Unit], scores: list[UnitScore], result: dict, path: str | Path,
                alpha: float) -> None:
-    """Example units (RUL median, 90 % band, naive baseline, truth and the alpha cone) and the PIT histogram."""
+    """Example units (RUL median, 90 % band, naive baseline, truth and the alpha cone), the PIT
+    histogram, and p_fail_next: its reliability and against the true RUL."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(2, 3, figsize=(14, 8))
+    fig, axes = plt.subplots(2, 4, figsize=(18, 8))
     picks = np.linspace(0, len(scores) - 1, 5).round().astype(int)
     for ax, i in zip(axes.flat[:5], picks):
         sc, u = scores[i], units[i]
@@ -558,6 +583,29 @@ def plot_bench(units: list[Unit], scores: list[UnitScore], result: dict, path: s
     ax.set_title(f"PIT of the true RUL: coverage 90 % = {m['coverage90']:.1%}", fontsize=9)
     ax.set_xlabel("predicted P(RUL <= true RUL)")
     ax.legend(fontsize=7)
+    f = m.get("p_fail_next")
+    if f:
+        ax = axes.flat[6]
+        cells = [c for c in f["reliability"] if c["n"]]
+        ax.plot([0, 1], [0, 1], "k--", lw=1, label="calibrated")
+        ax.plot([c["mean_p"] for c in cells], [c["observed"] for c in cells], "o-", color="C0")
+        for c in cells:
+            ax.annotate(str(c["n"]), (c["mean_p"], c["observed"]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        ax.set_xlabel("p_fail_next, mean of the bin")
+        ax.set_ylabel("failures before the next check, observed")
+        ax.set_title(f"p_fail_next reliability (points per bin); Brier skill {f['brier_skill']:.2f}", fontsize=9)
+        ax.legend(fontsize=7)
+        ax = axes.flat[7]
+        p = np.concatenate([sc.p_next for sc in scores])
+        rt = np.concatenate([sc.r_true for sc in scores]) / f["interval_h"]
+        ax.semilogx(np.maximum(rt, 0.05), p, ".", color="C0", ms=4)
+        for key, ls in (("warn", ":"), ("error", "--")):
+            ax.axhline(f[key]["p"], color="C3", ls=ls, lw=1, label=f"{key.upper()} {f[key]['p']:g}")
+        ax.axvline(1.0, color="k", lw=1)
+        ax.set_xlabel("true RUL / check interval")
+        ax.set_ylabel("p_fail_next")
+        ax.set_title(f"p_fail_next vs the true RUL ({f['events']} failures left of the line)", fontsize=9)
+        ax.legend(fontsize=7)
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
@@ -578,7 +626,7 @@ def bench_rul(settings: Settings | None = None, cache_dir: str | Path = "out/rul
     diag = diagnose_fleet(units, s.bench.method, cache_dir, progress)
     t1 = time.perf_counter()
     scores = _predict_unit_points(units, s, thr, progress)
-    result = score_fleet(scores, s.bench)
+    result = score_fleet(scores, s.bench, s.prognosis.warn_p_fail, s.prognosis.error_p_fail)
     if progress:
         progress(f"reference predictors (oracle and {len(REFERENCES)} Bayesian) at {result['points']} points")
     result["oracle"] = {"alpha_lambda": oracle_alpha_lambda(units, scores, thr, s.bench),
@@ -635,6 +683,20 @@ def format_result(r: dict) -> str:
     lines.append(f"| points without a RUL | {m['no_prediction_points']} | {n['no_prediction_points']} | - |")
     lines.append(f"| points with the fleet prior | {m['fleet_prior_points']} | - | - |")
     lines.append(f"| dominant fault right | {m['dominant_fault_right']:.1%} | - | - |")
+    if "p_fail_next" in m:
+        f = m["p_fail_next"]
+        lines.append(f"| p_fail_next (failure within the next {f['interval_h']:g} h): Brier score, skill against the "
+                     f"fleet's event rate | {f['brier']:.4f}, skill {f['brier_skill']:.2f} ({f['events']} failures "
+                     f"in {f['points']} points) | - | - |")
+        for key in ("warn", "error"):
+            w = f[key]
+            lines.append(f"| {key.upper()} (p_fail_next >= {w['p']:g}): failures warned / false, true RUL "
+                         f"beyond 2 checks | {w['events_raised']} of {f['events']} / {w['false']} of "
+                         f"{w['far_points']} | - | - |")
+        lines.append("| p_fail_next reliability: bin, points, mean predicted -> observed | "
+                     + "; ".join(f"[{c['p_lo']:g}, {c['p_hi']:g}{']' if c['p_hi'] >= 1 else ')'} {c['n']}"
+                                 + (f": {c['mean_p']:.3f} -> {c['observed']:.3f}" if c["n"] else "")
+                                 for c in f["reliability"]) + " | - | - |")
     lines += ["", "targets: " + "; ".join(f"{k}: {'met' if v else 'NOT met'}" for k, v in r["targets"].items())]
     return "\n".join(lines)
 

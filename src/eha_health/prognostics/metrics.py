@@ -13,6 +13,10 @@ distribution), true RUL r*_i = EOL - t_i, t_P the first prediction time, EOL the
 * convergence: distance from (t_P, 0) to the centroid of the area under the error curve
   M_i = |r_i - r*_i|, both axes in fractions of EOL (smaller converges faster).
 * coverage: fraction of points whose interval [p05, p95] holds r*.
+* Brier score of the probability of failure before the next check p_i against the outcome
+  y_i = [r*_i <= next check] (Brier 1950): BS = mean (p_i - y_i)^2; skill 1 - BS / (y(1 - y)), the
+  climatology (every point given the fleet's event rate) scoring 0. Reliability: per bin of p,
+  the mean p against the observed frequency of y (a calibrated p lies on the diagonal).
 * NASA score per point: exp(-d/13) - 1 if d < 0 else exp(d/10) - 1, with d = r - r* in
   percent of the unit's life (the PHM08 constants, which were in cycles of ~200-cycle lives;
   percent keeps them scale-free), d capped at +-100 % (a missing prediction counts as
@@ -81,6 +85,26 @@ def nasa_score(r: np.ndarray, r_true: np.ndarray, life: float) -> np.ndarray:
     d = 100.0 * (np.asarray(r, float) - np.asarray(r_true, float)) / life
     d = np.clip(np.where(np.isfinite(d), d, 100.0), -100.0, 100.0)   # capped at a whole life either way
     return np.where(d < 0, np.expm1(-d / 13.0), np.expm1(d / 10.0))
+
+
+def brier(p: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """(Brier score, skill against the climatology of the same events); skill NaN without both outcomes."""
+    p, y = np.asarray(p, float), np.asarray(y, float)
+    bs = float(np.mean((p - y) ** 2))
+    ref = float(np.mean(y) * (1 - np.mean(y)))
+    return bs, (1.0 - bs / ref if ref > 0 else float("nan"))
+
+
+def reliability(p: np.ndarray, y: np.ndarray, edges=(0.0, 0.05, 0.2, 0.5, 1.0)) -> list[dict]:
+    """Per bin [lo, hi) of p (the last closed): points, mean p, observed frequency of y."""
+    p, y = np.asarray(p, float), np.asarray(y, bool)
+    out = []
+    for i, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
+        m = (p >= lo) & ((p <= hi) if i == len(edges) - 2 else (p < hi))
+        out.append({"p_lo": lo, "p_hi": hi, "n": int(m.sum()),
+                    "mean_p": float(p[m].mean()) if m.any() else None,
+                    "observed": float(y[m].mean()) if m.any() else None})
+    return out
 
 
 def naive_rul(time_h: np.ndarray, k: np.ndarray, threshold: float, window: int) -> float:
