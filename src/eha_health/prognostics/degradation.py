@@ -454,6 +454,28 @@ def degradation_segment(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, sigm
     return max(int(js[0]) - 1, 0)
 
 
+_ROWS = 256     # onset candidates per block of :func:`rise_onset` (memory ~ 10 x _ROWS x n floats)
+
+
+def _hinge_gain(time_h, k, w, t_on, sw, sy, syy) -> np.ndarray:
+    """Smallest leave-one-out (before the last) hinge gain of :func:`rise_onset`, per onset in ``t_on``."""
+    n = len(k)
+    x = np.maximum(time_h[None, :] - t_on[:, None], 0.0)            # [J, n]
+    wx = w * x
+    sx = wx.sum(1, keepdims=True) - wx
+    sxx = (wx * x).sum(1, keepdims=True) - wx * x
+    sxy = (wx * k).sum(1, keepdims=True) - wx * k
+    cxy, cxx = sxy - sx * sy / sw, sxx - sx * sx / sw
+    ok = (cxy > 0) & (cxx > 1e-12 * np.maximum(sxx, 1e-300))
+    gain = np.where(ok, cxy * cxy / np.where(ok, cxx, 1.0), 0.0)
+    if n >= 5:
+        # errors understated: the scatter about the hinge itself (n - 1 tests, 2 parameters) is
+        # the error scale where it exceeds the stated one -- an F test, never more lenient
+        resid = np.maximum((syy - sy * sy / sw) - gain, 0.0) / (n - 3)
+        gain = gain / np.maximum(resid, 1.0)
+    return gain[:, :-1].min(1)
+
+
 def rise_onset(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, chi2_min: float,
                min_after: int = 2) -> int | None:
     """Onset test j of the strongest rise of K as a whole, or None if none clears ``chi2_min``.
@@ -476,23 +498,11 @@ def rise_onset(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, chi2_min: flo
     if m < 1:
         return None
     w = 1.0 / np.square(std)
-    x = np.maximum(time_h[None, :] - time_h[:m, None], 0.0)          # [J, n]
-    wx, wk = w * x, w * k
-    # the sums with every test, minus each test's share [J, n]: every test left out once
-    sw = w.sum() - w[None, :]
-    sy = wk.sum() - wk[None, :]
-    sx = wx.sum(1, keepdims=True) - wx
-    sxx = (wx * x).sum(1, keepdims=True) - wx * x
-    sxy = (wx * k).sum(1, keepdims=True) - wx * k
+    wk = w * k
+    sw, sy = w.sum() - w[None, :], wk.sum() - wk[None, :]     # every test left out once [1, n]
     syy = (wk * k).sum() - wk * k
-    cxy, cxx = sxy - sx * sy / sw, sxx - sx * sx / sw
-    ok = (cxy > 0) & (cxx > 1e-12 * np.maximum(sxx, 1e-300))
-    gain = np.where(ok, cxy * cxy / np.where(ok, cxx, 1.0), 0.0)
-    if n >= 5:
-        # errors understated: the scatter about the hinge itself (n - 1 tests, 2 parameters) is
-        # the error scale where it exceeds the stated one -- an F test, never more lenient
-        resid = np.maximum((syy - sy * sy / sw) - gain, 0.0) / (n - 3)
-        gain = gain / np.maximum(resid, 1.0)
-    gain = gain[:, :-1].min(1)
+    # onsets in blocks: the [J, n] sums of a history of thousands of tests would take GBs
+    gain = np.concatenate([_hinge_gain(time_h, k, w, time_h[a:min(a + _ROWS, m)], sw, sy, syy)
+                           for a in range(0, m, _ROWS)])
     j = int(np.argmax(gain))
     return j if gain[j] >= chi2_min else None
