@@ -209,3 +209,28 @@ def test_a_warning_from_one_test_off_its_trend_says_to_test_again(tmp_path):
     level, why = step.level(Outcome(True, prog))
     assert level == "WARN", (level, prog["overall"])
     assert "the last gm test is off its trend" in why and "test again" in why
+
+
+def test_step_on_the_usage_clock(tmp_path, diagnosis_at_500h):
+    """prognosis.clock usage (the monitor's prognostics_settings): with the usage of each test the
+    step prognoses on it; a test without one is appended and the prognosis refused in one line,
+    never raised."""
+    d, r = diagnosis_at_500h
+    db = tmp_path / "h.sqlite"
+    last = seed_history(db)
+    con = sqlite3.connect(db)
+    con.execute("UPDATE tests SET usage = 2.0 * time_h")          # 2 cycles per hour so far
+    con.commit()
+    con.close()
+    s = load_settings(overrides={"prognosis": {"clock": "usage"}})
+    step = PrognosisStep(db, "eha", next_check_h=200.0, settings=s)
+    out = step.after_diagnosis(d, last + 180.0, response=r, usage=2.0 * (last + 180.0))
+    assert out.appended and out.error is None and out.prognosis["overall"]["clock"] == "usage"
+    # even usage: the hours are those of the time clock (50 < RUL < 300 h as in the test above)
+    assert 50 < out.prognosis["overall"]["rul_median_h"] < 300
+    assert out.prognosis["faults"]["gm"]["rul_median_usage"] == pytest.approx(
+        2.0 * out.prognosis["faults"]["gm"]["rul_median_h"], rel=0.15)
+    d2 = diagnose(simulate(kind="reference", faults=Faults(k_gm=0.62),
+                           params=load("reference").with_effect_names(["sensor_noise"]), seed=7), method="deterministic")
+    nousage = step.after_diagnosis(d2, last + 220.0)
+    assert nousage.appended and nousage.prognosis is None and "the usage clock needs a usage" in nousage.error

@@ -27,6 +27,9 @@ passage. Cases:
                  0.1-0.2 (a partial repair nobody recorded) and wear goes on at its rate; a test
                  every 40 h, cut at 65-90 % of the (later) end of life
   partial_t2     the same on gamma_t2's mean ~ t^2 (nu 0.001)
+  usage_seasons  gamma (nu 0.001) in the usage, not the hours: the usage rate [usage/h] is
+                 lognormal(0, 0.7) per 200-h season about 1; tests every 50 h carry the usage
+                 (compare --clock time and --clock usage)
 
 Prints per case the line of `rul_probe.report` (units given a RUL, coverage of the 5-95 %
 interval with a unit without a RUL a miss, medians within +-20 %, median/true quantiles), how
@@ -34,7 +37,8 @@ many of them rest on the fleet prior, K_GM / K_BKL given a RUL where any is (a f
 the false WARNs: P(failure within the next 50 h) >= 5 % where the true RUL exceeds 100 h. For ``two_stage``, two more lines split the coverage by whether the history ends before the rate
 change: nothing in such a history shows the change to come. For the partial repairs, one more:
 how many say ``unrecorded_repair_h`` within 2 tests of the fall, and how many set tests aside
-instead. docs/prognostics.md ("Wear processes
+instead. Where the tests carry a usage, one more: the coverage of ``rul_*_usage`` against the
+true usage to failure. docs/prognostics.md ("Wear processes
 and regime changes") quotes this script.
 """
 import tempfile
@@ -60,6 +64,7 @@ CASES = {
     "young": ("healthy_gamma", 0.005, 10.0, ("after onset", 60.0, 150.0)),
     "partial_repair": ("partial_repair", 0.005, 40.0, (0.65, 0.9)),
     "partial_t2": ("partial_t2", 0.005, 40.0, (0.65, 0.9)),
+    "usage_seasons": ("usage_seasons", 0.005, 50.0, (0.3, 0.85)),
 }
 
 
@@ -68,12 +73,13 @@ def _gamma_steps(rng: np.random.Generator, mean_steps: np.ndarray, nu: float) ->
     return rng.gamma(np.maximum(mean_steps, 1e-12) / nu, nu)
 
 
-def latent_path(law: str, rng: np.random.Generator, life: float) -> tuple[np.ndarray, float, float | None]:
-    """(K on a 1-h grid, first passage of THRESHOLD [h], regime change or partial repair [h] or None)."""
+def latent_path(law: str, rng: np.random.Generator, life: float):
+    """(K on a 1-h grid, first passage of THRESHOLD [h], regime change or partial repair [h] or
+    None, usage on the grid or None)."""
     n = int(10 * life) + 10
     t = np.arange(n, dtype=float)
     rate = THRESHOLD / life                                   # K / h of the mean path
-    change = drop = None
+    change = drop = usage = None
     if law.startswith("partial"):
         change, drop = rng.uniform(0.3, 0.55) * life, rng.uniform(0.1, 0.2)
         law = "gamma" if law == "partial_repair" else "gamma_t2"
@@ -98,6 +104,11 @@ def latent_path(law: str, rng: np.random.Generator, life: float) -> tuple[np.nda
     elif law == "healthy_gamma":
         start = change = rng.uniform(0.2, 0.5) * life
         inc = np.where(t[1:] < start, 0.0, _gamma_steps(rng, np.full(n - 1, THRESHOLD / (life - start)), 0.002))
+    elif law == "usage_seasons":
+        per_h = np.repeat(np.exp(rng.normal(0.0, 0.7, n // 200 + 1)), 200)[:n - 1]   # usage / h, by season
+        usage = np.concatenate([[0.0], np.cumsum(per_h)])
+        # gamma wear per unit of usage; its mean reaches the threshold at the usage of hour ``life``
+        inc = _gamma_steps(rng, THRESHOLD / usage[int(life)] * per_h, 0.001)
     elif law == "exp":
         b = rng.uniform(2.0, 4.0)
         inc = _gamma_steps(rng, np.diff(THRESHOLD * np.expm1(b * t / life) / np.expm1(b)), 0.0005)
@@ -107,7 +118,7 @@ def latent_path(law: str, rng: np.random.Generator, life: float) -> tuple[np.nda
     if drop is not None:
         k = np.where(t >= change, np.maximum(k - drop, 0.0), k)
     hit = np.nonzero(k >= THRESHOLD)[0]
-    return k, (float(t[hit[0]]) if len(hit) else np.inf), change
+    return k, (float(t[hit[0]]) if len(hit) else np.inf), change, usage
 
 
 def fleet(case: str, units: int, rng: np.random.Generator) -> tuple[list[dict], dict, dict]:
@@ -115,7 +126,7 @@ def fleet(case: str, units: int, rng: np.random.Generator) -> tuple[list[dict], 
     law, noise, interval, cut = CASES[case]
     rows, truth, changes = [], {}, {}
     while len(truth) < units:
-        k, eol, change = latent_path(law, rng, 1000.0 * np.exp(rng.normal(0.0, 0.3)))
+        k, eol, change, usage = latent_path(law, rng, 1000.0 * np.exp(rng.normal(0.0, 0.3)))
         if not np.isfinite(eol):
             continue
         end = change + rng.uniform(*cut[1:]) if cut[0] == "after onset" else rng.uniform(*cut) * eol
@@ -126,10 +137,12 @@ def fleet(case: str, units: int, rng: np.random.Generator) -> tuple[list[dict], 
         for ti in times:
             y = np.clip(np.array([OTHER_K, k[int(ti)], OTHER_K]) + rng.normal(0.0, noise, 3), 0.0, 1.5)
             rows.append({"actuator_id": u, "time_h": float(ti), "k_gm": float(y[0]), "k_fsj": float(y[1]),
-                         "k_bkl": float(y[2]), "std_gm": noise, "std_fsj": noise, "std_bkl": noise})
+                         "k_bkl": float(y[2]), "std_gm": noise, "std_fsj": noise, "std_bkl": noise}
+                        | ({} if usage is None else {"usage": round(float(usage[int(ti)]), 3)}))
         truth[u] = eol - times[-1]
         changes[u] = (bool(times[-1] < change) if law == "two_stage" else
-                      (change, interval) if law.startswith("partial") else None)
+                      (change, interval) if law.startswith("partial") else
+                      float(usage[int(eol)] - usage[int(times[-1])]) if usage is not None else None)
     return rows, truth, changes
 
 
@@ -149,7 +162,15 @@ def main() -> None:
             warn = sum((got[u]["p_fail_next"] if got[u]["p_fail_next"] is not None else
                         got[u].get("p_fail_next_min") or 0.0) >= 0.05 for u in far)
             print(f"  false WARN (P(failure within 50 h) >= 5 %, true RUL > 100 h): {warn} of {len(far)}", flush=True)
-            if case.startswith("partial"):
+            if CASES[case][0] == "usage_seasons":
+                inside = [got[u]["rul_median_usage"] is not None and
+                          (got[u]["rul_p05_usage"] or 0.0) <= before[u] <= (got[u]["rul_p95_usage"] or np.inf)
+                          for u in truth]
+                close = [got[u]["rul_median_usage"] is not None and abs(got[u]["rul_median_usage"] / before[u] - 1) <= 0.2
+                         for u in truth]
+                print(f"  usage to failure (rul_*_usage against the true usage): 90 % interval covers "
+                      f"{np.mean(inside):4.0%}; median within 20 % {np.mean(close):4.0%}", flush=True)
+            elif case.startswith("partial"):
                 said = sum(abs((got[u].get("unrecorded_repair_h") or -1e9) - before[u][0]) <= 2 * before[u][1]
                            for u in truth)
                 aside = sum(bool(got[u].get("outliers_h")) for u in truth)

@@ -12,20 +12,22 @@ from eha_health.prognostics.config import load_settings
 
 def probe_args(doc: str, what: str, names, units: int, seed: int, extra=None):
     """The probes' command line: positional ``what`` (of ``names``; default all), ``--units``,
-    ``--seed``, ``--settings`` and whatever ``extra(parser)`` adds. Returns (args, chosen names,
+    ``--seed``, ``--settings``, ``--clock`` and whatever ``extra(parser)`` adds. Returns (args, chosen names,
     settings or None); an unknown name is an argparse error."""
     ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("names", nargs="*", metavar=what.upper(), help="of: " + ", ".join(names) + " (default: all)")
     ap.add_argument("--units", type=int, default=units)
     ap.add_argument("--seed", type=int, default=seed)
     ap.add_argument("--settings", help="prognostics settings YAML merged over data/prognostics.yaml")
+    ap.add_argument("--clock", choices=("time", "usage"), help="prognosis.clock (default: the settings')")
     if extra is not None:
         extra(ap)
     a = ap.parse_args()
     unknown = set(a.names) - set(names)
     if unknown:
         ap.error(f"unknown {what}(s) {', '.join(sorted(unknown))}; known: {', '.join(names)}")
-    return a, a.names or list(names), (load_settings(a.settings) if a.settings else None)
+    over = {"prognosis": {"clock": a.clock}} if a.clock else None
+    return a, a.names or list(names), (load_settings(a.settings, over) if a.settings or over else None)
 
 
 def draw_unit(rng: np.random.Generator, interval_h: float, cut=(0.4, 0.8)) -> tuple[float, float, np.ndarray]:

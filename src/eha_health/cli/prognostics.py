@@ -31,12 +31,15 @@ def _db(args, must_exist: bool, settings) -> Path:
 
 
 def _settings(args):
-    """The prognostics settings of ``--settings`` (merged over data/prognostics.yaml)."""
+    """The prognostics settings of ``--settings`` (merged over data/prognostics.yaml; ``--clock``
+    over both)."""
     from ..prognostics.config import load_settings
     path = getattr(args, "settings", None)
     if path and not Path(path).expanduser().is_file():
         raise UsageError(f"{path}: no such settings file")
-    return load_settings(Path(path).expanduser() if path else None)
+    clock = getattr(args, "clock", None)
+    return load_settings(Path(path).expanduser() if path else None,
+                         {"prognosis": {"clock": clock}} if clock else None)
 
 
 def _finite(v: float | None, name: str, minimum: float = 0.0) -> None:
@@ -170,11 +173,16 @@ def _fmt_h(v) -> str:
     return format_hours(v)
 
 
+def _fmt_usage(v) -> str:
+    return "beyond the horizon" if v is None else f"{v:g}"
+
+
 def format_prognosis(obj: dict, next_check_h: float) -> str:
     """The ``prognose`` object as a table: one line per fault and the overall, per actuator."""
     lines = []
     for a, r in obj["actuators"].items():
-        lines.append(f"{a}:")
+        lines.append(f"{a}:" + ("  (wear fitted against usage; hours at the unit's usage rate)"
+                                if r["overall"].get("clock") == "usage" else ""))
         lines.append(f"  {'fault':8s} {'model':18s} {'RUL median [5 %, 95 %] h':>28s} "
                      f"{'P(fail < ' + format(next_check_h, 'g') + ' h)':>16s} {'threshold':>9s} {'tests':>5s}")
         for name, f in [*r["faults"].items(), ("overall", r["overall"])]:
@@ -186,6 +194,9 @@ def format_prognosis(obj: dict, next_check_h: float) -> str:
             thr = "-" if f["threshold"] is None else f"{f['threshold']:.3f}"
             model = (f["model"] or "-") + (" +fleet" if f.get("fleet_prior") else "")
             lines.append(f"  {name:8s} {model:18s} {rul:>28s} {pf:>16s} {thr:>9s} {f['n_tests']:5d}")
+            if r["overall"].get("clock") == "usage" and f.get("rul_median_usage") is not None:
+                lines.append(f"  {'':8s} in usage: {f['rul_median_usage']:g} [{f['rul_p05_usage']:g}, "
+                             f"{_fmt_usage(f['rul_p95_usage'])}] (the fit's clock)")
             if name == "overall" and f.get("dominant_fault"):
                 lines.append(f"  {'':8s} dominant fault: {f['dominant_fault']}")
             if f.get("unrecorded_repair_h") is not None:
@@ -289,6 +300,9 @@ def register(sub) -> None:
                                                       "prognosis.next_check_h of data/prognostics.yaml)")
     p.add_argument("--plot", help="PNG per fault: history, trend and band, threshold, RUL distribution "
                                   "(of --actuator, default the first)")
+    p.add_argument("--clock", choices=("time", "usage"), help="fit wear against time_h or against the tests' "
+                   "usage (wear that follows flight hours or cycles; RUL in hours at each unit's usage rate); "
+                   "default prognosis.clock of the settings (time)")
     p.set_defaults(func=cmd_prognose)
     p.epilog = "--history also takes a HISTORY.csv"
 

@@ -60,6 +60,8 @@ class HistorySettings:
 class PrognosisSettings:
     min_tests: int = _f("-", "tests since the last repair below which no RUL is given")
     next_check_h: float = _f("h", "default interval to the next check")
+    clock: str = _f("-", "what wear is fitted against: time (time_h, operating hours) or usage (the tests' "
+                         "usage: flight hours, cycles); the RUL is in hours either way (prognostics/clock.py)")
     warn_p_fail: float = _f("-", "p_fail_next at or above which the monitor reports WARN")
     error_p_fail: float = _f("-", "p_fail_next at or above which the monitor reports ERROR")
     onset_sigma: float = _f("-", "onset: rise over the first post-repair K in standard errors")
@@ -219,6 +221,8 @@ def _validate(s: Settings) -> None:
         if not r.limit > 0:
             raise PrognosticsError(f"requirement {r.name}: limit must be > 0 {METRICS[r.metric][0]}")
     p = s.prognosis
+    if p.clock not in ("time", "usage"):
+        raise PrognosticsError(f"prognosis.clock must be time or usage, got {p.clock!r}")
     if p.min_tests < 3:
         raise PrognosticsError("prognosis.min_tests must be >= 3 (a trend needs three points)")
     if not 0 < p.warn_p_fail <= p.error_p_fail <= 1:

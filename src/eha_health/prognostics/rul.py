@@ -41,8 +41,10 @@ gives the same result.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -51,6 +53,9 @@ from .degradation import (ModelFit, Series, akaike_weights, degradation_segment,
                           shape_g, shape_g_inv)
 from .scatter import isolated_outliers, last_persistent_fall, noise_estimate
 from .thresholds import FAULTS, threshold_values
+
+if TYPE_CHECKING:
+    from .clock import UsageClock
 
 CHUNK = 256   # series per sampling chunk (memory ~ CHUNK x samples x 30 floats)
 
@@ -256,6 +261,8 @@ class FaultPrediction:
     trend_candidate: int = 0              # ... and its onset candidate
     horizon_h: float = math.inf           # shortest prediction horizon of the samples (horizon_factor x span) [h]
     raw_samples: np.ndarray | None = None  # [M] before the horizon cut (few points since onset: for the fleet prior)
+    usage_samples: np.ndarray | None = None  # [M] usage RUL where fitted on the usage clock (samples: hours) ...
+    usage_weights: np.ndarray | None = None  # ... and its weights where they differ (the overall's)
 
     def quantiles(self) -> np.ndarray | None:
         """(p05, median, p95) of the RUL [h]; inf beyond the horizon."""
@@ -297,18 +304,26 @@ def format_hours(v: float | None) -> str:
     return f"{v:.0f}" if abs(v) >= 100.0 else f"{v:.3g}"
 
 
-def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None) -> dict:
-    """The F object of ``prognose --json``."""
+def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None,
+            clock: "UsageClock | None" = None) -> dict:
+    """The F object of ``prognose --json``; ``clock``: ``p`` was fitted on the usage clock
+    (:mod:`clock`): its samples are hours (:func:`to_hours`), ``usage_samples`` the usage RUL,
+    its past times usage values."""
     q = p.quantiles()
     d = {"model": p.model, "rul_median_h": None, "rul_p05_h": None, "rul_p95_h": None,
          "p_fail_next": None, "threshold": _num(p.threshold, 4), "n_tests": p.n_tests}
+    past = (lambda v: v) if clock is None else clock.to_hours   # a past test's clock value -> hours
     if q is not None:
         d["rul_p05_h"], d["rul_median_h"], d["rul_p95_h"] = (_num(v) for v in q)
         d["p_fail_next"] = round(p.p_fail(next_check_h), 4)
         if not p.p_fail_known(next_check_h):
             # samples beyond the horizon may fail before the check or after it: a lower bound only
             d["p_fail_next_min"], d["p_fail_next"] = d["p_fail_next"], None
-        if usage_per_h is not None:
+        if p.usage_samples is not None:         # fitted on the usage: its own quantiles
+            d["rul_p05_usage"], d["rul_median_usage"], d["rul_p95_usage"] = (
+                _num(v, 2) for v in weighted_quantiles(p.usage_samples, p.weights if p.usage_weights is None
+                                                       else p.usage_weights, (0.05, 0.5, 0.95)))
+        elif usage_per_h is not None:
             d["rul_p05_usage"], d["rul_median_usage"], d["rul_p95_usage"] = (
                 _num(v * usage_per_h, 2) for v in q)
         beyond = [n for n, v in zip(("p05", "median", "p95"), q) if not np.isfinite(v)]
@@ -319,17 +334,18 @@ def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None) 
             p.reason = f"K {p.k_last:.3f} at or beyond the threshold {p.threshold:.3f}: RUL 0"
     if p.model_weights:
         d["model_weights"] = {k: round(v, 3) for k, v in p.model_weights.items() if v > 0}
-    d.update({"n_points": p.n_points, "onset_h": _num(p.onset_h), "k_last": _num(p.k_last, 4),
-              "std_last": _num(p.std_last, 5), "fleet_prior": p.fleet_prior})
+    d.update({"n_points": p.n_points, "onset_h": _num(None if p.onset_h is None else past(p.onset_h)),
+              "k_last": _num(p.k_last, 4), "std_last": _num(p.std_last, 5), "fleet_prior": p.fleet_prior})
     if p.unrecorded_repair_h is not None:
-        d["unrecorded_repair_h"] = _num(p.unrecorded_repair_h, 3)
+        d["unrecorded_repair_h"] = _num(past(p.unrecorded_repair_h), 3)
     if p.outliers_h:
-        d["outliers_h"] = [_num(t, 3) for t in p.outliers_h]
+        d["outliers_h"] = [_num(past(t), 3) for t in p.outliers_h]
     if p.last_off_trend:
         d["last_test_off_trend"] = True
     if p.onset_weights is not None and len(p.onset_weights) > 1:
         # where the wear began: the onset candidates and their posterior weights
-        d["onset_posterior"] = {f"{t:g}": round(float(w), 3) for t, w in zip(p.candidate_onsets_h, p.onset_weights)}
+        d["onset_posterior"] = {f"{past(t):g}": round(float(w), 3)
+                                for t, w in zip(p.candidate_onsets_h, p.onset_weights)}
     reasons = [p.reason] if p.reason else []
     if "p_fail_next_min" in d:
         reasons.append(f"the next check in {next_check_h:g} h lies beyond the prediction horizon "
@@ -596,6 +612,18 @@ def life_estimate(p: FaultPrediction) -> tuple[float, float]:
 
 
 # ----------------------------------------------------------------------------- prognose
+def to_hours(p: FaultPrediction, clock: "UsageClock", s: Settings) -> None:
+    """A prediction fitted on the usage clock, its samples made hours (:meth:`clock.UsageClock.hours`;
+    the usage RUL kept as ``usage_samples``) and its horizon hours at the usage rate."""
+    from .clock import usage_draws
+    if p.samples is None:
+        return
+    zr, z, u = usage_draws(s.prognosis.seed, len(p.samples))
+    p.usage_samples, p.samples = p.samples, clock.hours(p.samples, zr, z, u)
+    p.horizon_h = p.horizon_h / clock.rate
+    p._q = None
+
+
 def _predict_fault(hist, ids: list[str], fi: int, thr: float, s: Settings) -> list[FaultPrediction]:
     """Predictions of fault ``fi`` for actuators ``ids`` from the tests since its last repair."""
     f = FAULTS[fi]
@@ -624,10 +652,17 @@ def fleet_priors(history, settings: Settings | None = None,
     prognoses one actuator after each test (the monitor) computes this once and passes it as
     ``prognose(..., priors=)`` until the rest of the fleet changes.
     """
+    from .clock import on_usage_clock
     from .store import as_history
     s = settings or load_settings()
     hist = as_history(history, s)
-    thr = thresholds or threshold_values(s)
+    if s.prognosis.clock == "usage":
+        hist, _ = on_usage_clock(hist, required=())
+    return _priors(hist, s, thresholds or threshold_values(s))
+
+
+def _priors(hist, s: Settings, thr: dict[str, float]) -> dict[str, FleetPrior | None]:
+    """:func:`fleet_priors` of a history on the clock of ``s``."""
     ids = sorted(hist.actuators)
     return {f: _prior_of(ids, _predict_fault(hist, ids, fi, thr[f], s), s) for fi, f in enumerate(FAULTS)}
 
@@ -645,6 +680,7 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
     {actuator: {fault|'overall': FaultPrediction}})`` for plots. ``priors`` (from
     :func:`fleet_priors`) with ``actuator``: only that actuator is fitted. Raises :class:`PrognosticsError`.
     """
+    from .clock import on_usage_clock
     from .store import as_history
     s = settings or load_settings()
     hist = as_history(history, s)
@@ -659,6 +695,12 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
                                f"{', ...' if len(hist.actuators) > 10 else ''})")
     thr = thresholds or threshold_values(s)
     ids = [actuator] if actuator is not None else sorted(hist.actuators)
+    clocks: dict = {}
+    if s.prognosis.clock == "usage":     # wear against the usage; hours from each unit's usage rate
+        rates = {a: h.usage_per_hour() for a, h in hist.actuators.items()}
+        hist, clocks = on_usage_clock(hist, required=set(ids))
+    else:
+        rates = None
     plists = {f: _predict_fault(hist, ids, fi, thr[f], s) for fi, f in enumerate(FAULTS)}
     if priors is None:
         # fleet prior from the members (enough points), applied to the actuators with few points;
@@ -666,7 +708,7 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
         if actuator is None:
             priors = {f: _prior_of(ids, plists[f], s) for f in FAULTS}
         elif any(takes_prior(p, s) for pl in plists.values() for p in pl):
-            priors = fleet_priors(hist, s, thr)
+            priors = _priors(hist, s, thr)
         else:
             priors = {}
     preds: dict[str, dict[str, FaultPrediction]] = {a: {} for a in ids}
@@ -674,16 +716,22 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
         for a, p in zip(ids, plists[f]):
             preds[a][f] = p
             apply_fleet_prior(p, priors.get(f), s, a)
+            if a in clocks:
+                to_hours(p, clocks[a], s)
     out = {}
     detail = {}
     for a in ids:
         if actuator is not None and a != actuator:
             continue
         h = hist.actuators[a]
-        rate = h.usage_per_hour()
-        faults = {f: summary(preds[a][f], nc, rate) for f in FAULTS}
+        rate = h.usage_per_hour() if rates is None else rates[a]
+        faults = {f: summary(preds[a][f], nc, rate, clocks.get(a)) for f in FAULTS}
         ov = overall(preds[a], len(h.time_h))
-        o = summary(ov, nc, rate)
+        if a in clocks and ov.samples is not None:     # the first fault to use its usage up
+            ovu = overall({f: dataclasses.replace(p, samples=p.usage_samples) for f, p in preds[a].items()},
+                          len(h.time_h))
+            ov.usage_samples, ov.usage_weights = ovu.samples, ovu.weights
+        o = summary(ov, nc, rate, clocks.get(a))
         o["dominant_fault"] = getattr(ov, "dominant", None)
         if hasattr(ov, "p_first"):
             o["p_first"] = {f: round(v, 4) for f, v in ov.p_first.items()}
@@ -691,8 +739,10 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
             o["note"] = ov.note
         for key in ("n_points", "onset_h", "k_last", "std_last", "onset_posterior"):
             o.pop(key, None)
+        if clocks:
+            o["clock"] = "usage"
         out[a] = {"faults": faults, "overall": o}
-        detail[a] = {**preds[a], "overall": ov}
+        detail[a] = {**preds[a], "overall": ov, "history": h}
     obj = {"actuators": out}
     return (obj, detail) if details else obj
 
@@ -740,7 +790,9 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
             raise PrognosticsError("the history is empty: no tests to prognose")
         actuator = sorted(hist.actuators)[0]
     obj, detail = prognose(hist, actuator, next_check_h, settings=s, details=True)
-    h, d = hist.actuators[actuator], detail[actuator]
+    d = detail[actuator]
+    h = d["history"]                      # on the clock of the fit: hours, or usage
+    unit = "usage" if s.prognosis.clock == "usage" else "h"
     fig, axes = plt.subplots(3, 1, figsize=(9, 10), sharex=True)
     for ax, (fi, f) in zip(axes, enumerate(FAULTS)):
         p = d[f]
@@ -756,9 +808,12 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
         if p.threshold is not None:
             ax.axhline(p.threshold, color="C3", lw=1, label=f"threshold {p.threshold:.3f}")
         q = p.quantiles()
+        # on the usage clock the axis is the usage: its RUL samples, not the hours
+        ruls = p.samples if p.usage_samples is None else p.usage_samples
+        qa = q if p.usage_samples is None or q is None else weighted_quantiles(ruls, p.weights, (0.05, 0.5, 0.95))
         if p.series is not None and q is not None and p.fits is not None:
             cs, t0 = p.candidates[p.trend_candidate], p.candidate_onsets_h[p.trend_candidate]
-            end = cs.tau_h[-1] + (q[2] if np.isfinite(q[2]) else 2 * cs.span_h)
+            end = cs.tau_h[-1] + (qa[2] if np.isfinite(qa[2]) else 2 * cs.span_h)
             wiener = p.model == "wiener"     # its past is the data; its trend starts at the last test
             tau = np.linspace(cs.tau_h[-1] if wiener else 0.0, end, 200)
             mean, lo, hi = trend_band(p, tau)
@@ -768,18 +823,21 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
                 for i, (tc, wc) in enumerate(zip(p.candidate_onsets_h, p.onset_weights)):
                     ax.axvline(tc, color="C4", lw=2, alpha=min(1.0, 0.15 + 0.85 * float(wc)),   # wc may round above 1
                                label="onset (shade: posterior weight)" if i == 0 else None)
-            fin = p.samples[np.isfinite(p.samples)]
+            fin = ruls[np.isfinite(ruls)]
             if len(fin):
                 ax2 = ax.twinx()
                 ax2.hist(h.time_h[-1] + fin, bins=40, weights=None if p.weights is None else
-                         p.weights[np.isfinite(p.samples)], color="C1", alpha=0.35)
+                         p.weights[np.isfinite(ruls)], color="C1", alpha=0.35)
                 ax2.set_yticks([])
-            ax.set_title(f"{actuator} {f}: RUL median {q[1]:.0f} h [{q[0]:.0f}, {q[2]:.0f}] (5-95 %)", fontsize=9)
+            hours = "" if unit == "h" else f" = {q[1]:.0f} h [{q[0]:.0f}, {q[2]:.0f}]"
+            ax.set_title(f"{actuator} {f}: RUL median {qa[1]:.0f} {unit} [{qa[0]:.0f}, {qa[2]:.0f}]{hours} (5-95 %)",
+                         fontsize=9)
         else:
             ax.set_title(f"{actuator} {f}: {p.reason}", fontsize=8)
         ax.set_ylabel(f"K_{f.upper()}")
         ax.legend(fontsize=7, loc="upper left")
-    axes[-1].set_xlabel("time [h]  (orange: RUL distribution from the last test)")
+    axes[-1].set_xlabel(("usage (the fit's clock)" if unit == "usage" else "time [h]")
+                        + "  (orange: RUL distribution from the last test)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

@@ -210,18 +210,24 @@ class ActuatorHistory:
         start = trend_start_h(self.repairs, fault)
         return self.time_h >= start if start is not None else np.ones(len(self.time_h), bool)
 
-    def usage_per_hour(self) -> float | None:
-        """Usage rate [usage unit / h] from a straight line through the tests with usage (since the
-        last replacement, or the last fall of the usage count); None
-        where fewer than 2 tests have one or the usage does not grow (no usage RUL to give)."""
-        ok = np.isfinite(self.usage)
+    def usage_window(self) -> np.ndarray:
+        """Mask of the tests of the current unit: since the last replacement, and since the last
+        fall of the usage count (a replacement not, or not yet, recorded)."""
+        ok = np.ones(len(self.time_h), bool)
         replaced = [t for t, _f, act in self.repairs if act == "replace"]
         if replaced:              # a new unit counts its usage from its own zero
             ok &= self.time_h >= max(replaced)
-        idx = np.nonzero(ok)[0]
+        idx = np.nonzero(ok & np.isfinite(self.usage))[0]
         fell = idx[1:][np.diff(self.usage[idx]) < 0]
-        if len(fell):             # ... also where its replacement is not (yet) recorded
+        if len(fell):
             ok[:fell[-1]] = False
+        return ok
+
+    def usage_per_hour(self) -> float | None:
+        """Usage rate [usage unit / h] from a straight line through the tests with usage of the
+        current unit (:meth:`usage_window`); None where fewer than 2 tests have one or the usage
+        does not grow (no usage RUL to give)."""
+        ok = self.usage_window() & np.isfinite(self.usage)
         if ok.sum() < 2 or np.ptp(self.time_h[ok]) <= 0 or np.ptp(self.usage[ok]) <= 0:
             return None
         rate = float(np.polyfit(self.time_h[ok], self.usage[ok], 1)[0])

@@ -1,0 +1,107 @@
+"""The usage clock: wear fitted against the tests' usage, the RUL in usage and in hours."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from eha_health.prognostics.clock import on_usage_clock, usage_variance
+from eha_health.prognostics.config import PrognosticsError, load_settings
+from eha_health.prognostics.rul import prognose
+from eha_health.prognostics.store import HealthRecord, _history_from_records
+
+THR = {"gm": 1.0, "fsj": 1.0, "bkl": 1.0}
+USAGE = load_settings(overrides={"prognosis": {"clock": "usage"}})
+
+
+def history(units, repairs=()):
+    """units: {id: (time_h, usage, k_gm)}; K_FSJ and K_BKL healthy."""
+    recs = [HealthRecord(a, float(t), (float(k), 0.01, 0.01), (0.005, 0.005, 0.005),
+                         usage=None if not np.isfinite(u) else float(u))
+            for a, (ts, us, ks) in units.items() for t, u, k in zip(ts, us, ks)]
+    return _history_from_records(recs, list(repairs), 0.002)
+
+
+def seasonal(seed, n=16, interval=50.0):
+    """Usage in 200-h seasons of lognormal rate; K_GM linear in usage, 0.4-0.7 at the last test."""
+    rng = np.random.default_rng(seed)
+    per_h = np.repeat(np.exp(rng.normal(0.0, 0.7, 40)), 200)
+    use = np.concatenate([[0.0], np.cumsum(per_h)])
+    t = np.arange(n) * interval
+    u = use[t.astype(int)]
+    slope = rng.uniform(0.4, 0.7) / u[-1]
+    return t, u, slope * u + rng.normal(0, 0.005, n), slope
+
+
+def test_the_usage_clock_merges_maps_and_refuses():
+    t = np.array([0.0, 50, 100, 150, 200, 250])
+    u = np.array([0.0, 40, 40, 90, 130, 170])           # no flying between the checks at 50 and 100 h
+    k = np.array([0.0, 0.1, 0.12, 0.2, 0.3, 0.4])
+    h, clocks = on_usage_clock(history({"A": (t, u, k)}, [("A", 120.0, "gm", "repair")]))
+    a, c = h.actuators["A"], clocks["A"]
+    assert a.time_h.tolist() == [0.0, 40.0, 90.0, 130.0, 170.0]          # the clock is the usage
+    assert a.k[1, 0] == pytest.approx(0.11) and a.std[1, 0] == pytest.approx(0.005 / np.sqrt(2))
+    assert a.repairs == [(90.0, "gm", "repair")]                         # at the first test after it
+    assert c.to_hours(90.0) == 150.0 and c.rate == pytest.approx(np.polyfit(t, u, 1)[0])
+    # a replaced unit counts its usage from its own zero: the old unit's tests are not on its clock
+    t2, u2 = np.r_[t, 300, 350, 400], np.r_[u, 10, 50, 95]
+    h2, _ = on_usage_clock(history({"A": (t2, u2, np.r_[k, 0.0, 0.05, 0.1])}))
+    assert h2.actuators["A"].time_h.tolist() == [10.0, 50.0, 95.0]
+    with pytest.raises(PrognosticsError, match=r"actuator B: .* time_h=100 has none"):
+        on_usage_clock(history({"B": (t, np.where(t == 100, np.nan, u), k)}))
+    with pytest.raises(PrognosticsError, match="actuator C: the usage clock needs a usage that grows"):
+        on_usage_clock(history({"C": (t, np.full(6, np.nan), k)}))
+    # not asked for: left out, not refused (it informs no fleet prior on the usage clock)
+    h3, _ = on_usage_clock(history({"A": (t, u, k), "C": (t, np.full(6, np.nan), k)}), required={"A"})
+    assert set(h3.actuators) == {"A"}
+
+
+def test_usage_variance_is_the_long_run_one():
+    """Even usage has none; usage in seasons shows its variance over blocks a season long, and a
+    fleet pooled sees it where one unit's history does not."""
+    t = np.arange(0.0, 1000.0, 50.0)
+    assert usage_variance([(t, 2.0 * t, 2.0)]) == pytest.approx(0.0, abs=1e-12)
+    units = []
+    for seed in range(40):
+        tt, u, *_ = seasonal(seed)
+        units.append((tt, u, float(np.polyfit(tt, u, 1)[0])))
+    pooled = usage_variance(units)
+    own = np.median([usage_variance([x]) for x in units])
+    assert own < 0.5 * pooled and 60.0 < pooled < 400.0          # the process: about 206 usage^2 / h
+
+
+def test_wear_in_usage_is_predicted_in_usage_and_in_hours():
+    """K linear in usage that comes in seasons: the usage RUL is the truth within 10 % and its
+    interval holds it; the hours are those of the usage to come at the unit's rate, with the
+    seasons' spread. Even usage: the usage clock gives the time clock's hours."""
+    units = {f"U{i}": seasonal(i) for i in range(12)}
+    out = prognose(history({a: v[:3] for a, v in units.items()}), settings=USAGE, thresholds=THR)["actuators"]
+    for a, (t, u, k, slope) in units.items():
+        g = out[a]["faults"]["gm"]
+        true_usage = 1.0 / slope - u[-1]
+        assert g["rul_p05_usage"] <= true_usage <= g["rul_p95_usage"], (a, g)
+        assert g["rul_median_usage"] == pytest.approx(true_usage, rel=0.1)
+        assert g["rul_p05_h"] < g["rul_median_h"] < g["rul_p95_h"] and out[a]["overall"]["clock"] == "usage"
+    t = np.arange(16) * 50.0
+    even = {"E": (t, 2.0 * t, 0.0004 * t + np.random.default_rng(1).normal(0, 0.005, 16))}
+    on_usage = prognose(history(even), settings=USAGE, thresholds=THR)["actuators"]["E"]["faults"]["gm"]
+    on_time = prognose(history(even), thresholds=THR)["actuators"]["E"]["faults"]["gm"]
+    assert on_usage["rul_median_h"] == pytest.approx(on_time["rul_median_h"], rel=0.03)
+    assert on_usage["rul_median_usage"] == pytest.approx(on_time["rul_median_usage"], rel=0.03)
+    assert on_usage["onset_h"] == on_time["onset_h"]                   # past times back in hours
+
+
+def test_prognose_clock_usage_from_the_command_line(tmp_path):
+    t, u, k, _ = seasonal(3)
+    p = tmp_path / "h.csv"
+    p.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl,usage\n"
+                 + "".join(f"A,{a},{b},0.01,0.01,{c}\n" for a, b, c in zip(t, k, u)))
+    run = [sys.executable, "-m", "eha_health.cli", "prognose", "--history", str(p), "--json"]
+    r = subprocess.run(run + ["--clock", "usage"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["actuators"]["A"]["overall"]["clock"] == "usage"
+    q = tmp_path / "nousage.csv"
+    q.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl\n" + "".join(f"B,{a},{b},0,0\n" for a, b in zip(t, k)))
+    r = subprocess.run(run[:5] + [str(q), "--clock", "usage"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2 and "actuator B: the usage clock needs a usage" in r.stderr
