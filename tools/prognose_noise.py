@@ -26,6 +26,7 @@ Prints per kind and law: the units given a RUL, the coverage of the 5-95 % inter
 without a RUL counts as a miss), the share of medians within +-20 % of the truth and the 10/50/90 %
 quantiles of median/true. docs/prognostics.md ("Diagnosis errors the bench does not make") quotes it.
 """
+import argparse
 import tempfile
 
 import numpy as np
@@ -83,8 +84,17 @@ def fleet(law: str, kind: str, units: int, rng: np.random.Generator, interval_h:
     return rows, truth
 
 
+def _law_list(text: str) -> list[str]:
+    """``--laws``: a comma-separated list of known laws (argparse says which is not)."""
+    laws = text.split(",")
+    unknown = sorted(set(laws) - set(LAWS))
+    if unknown:
+        raise argparse.ArgumentTypeError(f"unknown law(s): {', '.join(unknown)}; known: {', '.join(LAWS)}")
+    return laws
+
+
 def _noise_options(ap) -> None:
-    ap.add_argument("--laws", default=",".join(DEFAULT_LAWS), help="of: " + ", ".join(LAWS))
+    ap.add_argument("--laws", type=_law_list, default=list(DEFAULT_LAWS), help="of: " + ", ".join(LAWS))
     ap.add_argument("--interval-h", type=float, default=50.0, help="hours between tests (default 50)")
     ap.add_argument("--cut", default="0.4,0.8", help="LO,HI: the history ends at a uniform LO-HI of the life "
                                                      "after onset (default 0.4,0.8)")
@@ -92,9 +102,7 @@ def _noise_options(ap) -> None:
 
 def main() -> None:
     a, kinds, settings = probe_args(__doc__, "kind", KINDS, units=30, seed=11, extra=_noise_options)
-    laws = a.laws.split(",")
-    if set(laws) - set(LAWS):
-        raise SystemExit(f"unknown law(s): {', '.join(sorted(set(laws) - set(LAWS)))}; known: {', '.join(LAWS)}")
+    laws = a.laws
     with tempfile.TemporaryDirectory() as d:
         for kind in kinds:
             for law in laws:
