@@ -35,6 +35,10 @@ prior density at tau_now + RUL (Bayes: posterior ~ likelihood x prior); ``fleet_
 says so in the output. With fewer than ``min_tests`` tests since the last repair no RUL
 is given and ``reason`` says why.
 
+On the usage clock (``prognosis.clock: usage``, :mod:`clock`) the same is done with each
+actuator's usage as the time axis; the samples are then usage, made hours by
+:func:`to_hours` (kept as ``usage_samples``).
+
 Random draws are common random numbers per fault (``SeedSequence([seed, fault])``), so an
 actuator's result depends on its own data (and the fleet prior) only, and the same seed
 gives the same result.
