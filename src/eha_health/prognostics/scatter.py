@@ -158,7 +158,10 @@ def last_persistent_fall(t: np.ndarray, k: np.ndarray, std: np.ndarray, sigma: f
     from i on, the actuator was repaired or replaced at i (a repair the history does not hold).
     One failed diagnosis moves no median; a burst of them that ends falls back to the level
     before it, not below; nor are two low among three a fall: the median of the (up to)
-    ``4 window`` tests from i on must lie as far below. Each median is of the levels carried to
+    ``4 window`` tests from i on must lie as far below; with only 2 tests from i on, both must
+    (their mean is one failed diagnosis' to move). Test i, as read, must also lie below the
+    median of the tests before it by half as much: a plateau (no wear for a while) carried
+    along the rate reads as a fall. Each median is of the levels carried to
     t_i [h] along the wear rate b = max(0, min(Theil-Sen slopes of the ``2 window`` tests before
     those windows, of those windows, of the ``4 window`` tests from i on -- 0 with fewer than
     ``window`` before or after)): a partial repair of wear that goes on falls below the rising
@@ -184,13 +187,22 @@ def last_persistent_fall(t: np.ndarray, k: np.ndarray, std: np.ndarray, sigma: f
 
     def level(start, end, width=w):                        # median K of [start, end) carried to t_i
         return _nanmedian(_gather(k, start, end, width) - b[:, None] * (_gather(t, start, end, width) - t[i, None]))
-    before, after = level(i - w, i), level(i, np.minimum(i + w, n))
+
+    def down(start, end, width=w):
+        # K from i on carried to t_i: the median of 3 or more; of 2 (the second-to-last test), the
+        # higher -- their mean is moved by one failed diagnosis, and a fall shows in both
+        x = _gather(k, start, end, width) - b[:, None] * (_gather(t, start, end, width) - t[i, None])
+        return np.where(end - start >= 3, _nanmedian(x), np.nanmax(x, axis=1))
+    before, after = level(i - w, i), down(i, np.minimum(i + w, n))
     earlier = np.where(i - w > lo, level(lo, np.maximum(i - w, lo)), np.nan)
     # below the tests before the fall, and below those before them: a burst of failed
     # diagnoses that ends falls back to the earlier level only; and down for good, by the median
     # of up to 4 window tests from i on: two failed diagnoses low among three are not a fall
     hit = ((before - after > here) & (before - k[i] > here)
-           & (np.isnan(earlier) | (earlier - after > here)) & (before - level(i, stop, 4 * w) > here))
+           & (np.isnan(earlier) | (earlier - after > here)) & (before - down(i, stop, 4 * w) > here))
+    # and test i below the tests before it as read, by half as much: carried along the rate, a
+    # plateau (no wear for a while) reads as a fall (an independent probe: 8 in 120 such histories)
+    hit &= _nanmedian(_gather(k, i - w, i, w)) - k[i] > 0.5 * here
     hits = i[hit].tolist()
     if not hits:
         return None
