@@ -38,7 +38,7 @@ def test_the_usage_clock_merges_maps_and_refuses():
     t = np.array([0.0, 50, 100, 150, 200, 250])
     u = np.array([0.0, 40, 40, 90, 130, 170])           # no flying between the checks at 50 and 100 h
     k = np.array([0.0, 0.1, 0.12, 0.2, 0.3, 0.4])
-    h, clocks = on_usage_clock(history({"A": (t, u, k)}, [("A", 120.0, "gm", "repair")]))
+    h, clocks, _ = on_usage_clock(history({"A": (t, u, k)}, [("A", 120.0, "gm", "repair")]))
     a, c = h.actuators["A"], clocks["A"]
     assert a.time_h.tolist() == [0.0, 40.0, 90.0, 130.0, 170.0]          # the clock is the usage
     assert a.k[1, 0] == pytest.approx(0.11) and a.std[1, 0] == pytest.approx(0.005 / np.sqrt(2))
@@ -46,15 +46,22 @@ def test_the_usage_clock_merges_maps_and_refuses():
     assert c.to_hours(90.0) == 150.0 and c.rate == pytest.approx(np.polyfit(t, u, 1)[0])
     # a replaced unit counts its usage from its own zero: the old unit's tests are not on its clock
     t2, u2 = np.r_[t, 300, 350, 400], np.r_[u, 10, 50, 95]
-    h2, _ = on_usage_clock(history({"A": (t2, u2, np.r_[k, 0.0, 0.05, 0.1])}))
+    h2, *_ = on_usage_clock(history({"A": (t2, u2, np.r_[k, 0.0, 0.05, 0.1])}))
     assert h2.actuators["A"].time_h.tolist() == [10.0, 50.0, 95.0]
     with pytest.raises(PrognosticsError, match=r"actuator B: .* time_h=100 has none"):
         on_usage_clock(history({"B": (t, np.where(t == 100, np.nan, u), k)}))
     with pytest.raises(PrognosticsError, match="actuator C: the usage clock needs a usage that grows"):
         on_usage_clock(history({"C": (t, np.full(6, np.nan), k)}))
     # not asked for: left out, not refused (it informs no fleet prior on the usage clock)
-    h3, _ = on_usage_clock(history({"A": (t, u, k), "C": (t, np.full(6, np.nan), k)}), required={"A"})
-    assert set(h3.actuators) == {"A"}
+    h3, _, refused = on_usage_clock(history({"A": (t, u, k), "C": (t, np.full(6, np.nan), k)}), required={"A"})
+    assert set(h3.actuators) == {"A"} and "actuator C: the usage clock needs" in refused["C"]
+    # a fleet report: the actuator without a usage gets no RUL and says why; the others theirs
+    fleet = prognose(history({"A": (t, u, k), "C": (t, np.full(6, np.nan), k)}), settings=USAGE, thresholds=THR)
+    c = fleet["actuators"]["C"]
+    assert c["overall"]["rul_median_h"] is None and "the usage clock needs" in c["faults"]["gm"]["reason"]
+    assert fleet["actuators"]["A"]["faults"]["gm"]["rul_median_h"] is not None
+    with pytest.raises(PrognosticsError, match="actuator C: the usage clock needs"):      # asked for: refused
+        prognose(history({"A": (t, u, k), "C": (t, np.full(6, np.nan), k)}), "C", settings=USAGE, thresholds=THR)
 
 
 def test_usage_variance_is_the_long_run_one():

@@ -104,25 +104,27 @@ def _merge_equal(u: np.ndarray, t: np.ndarray, k: np.ndarray, std: np.ndarray):
     return u[starts], t[ends - 1], km, sm
 
 
-def on_usage_clock(hist: History, required=None) -> tuple[History, dict[str, UsageClock]]:
-    """``hist`` with each actuator's clock the usage of its current unit (module docstring).
+def on_usage_clock(hist: History, required=None) -> tuple[History, dict[str, UsageClock], dict[str, str]]:
+    """``hist`` with each actuator's clock the usage of its current unit (module docstring), the
+    clocks, and why the actuators left out could not be put on it.
 
     Raises :class:`PrognosticsError` naming the actuator where a test of its current unit has no
     usage, or where the usage does not grow (no rate to give hours by) -- for the actuators in
     ``required`` (default: all); others that cannot be put on the clock are left out (they
-    inform no fleet prior on it)."""
-    out, clocks, usage = History(), {}, {}
+    inform no fleet prior on it) with that reason."""
+    out, clocks, usage, refused = History(), {}, {}, {}
     for a, h in hist.actuators.items():
         rate, keep = h.usage_per_hour(), h.usage_window()
         missing = keep & ~np.isfinite(h.usage)
         if rate is None or missing.any():
-            if required is not None and a not in required:
-                continue
-            if rate is None:
-                raise PrognosticsError(f"actuator {a}: the usage clock needs a usage that grows over at least 2 "
-                                       f"tests (history add --usage, or a usage column); or use --clock time")
-            raise PrognosticsError(f"actuator {a}: the usage clock needs a usage at every test of the current unit; "
-                                   f"the test at time_h={h.time_h[missing][0]:g} has none")
+            why = (f"actuator {a}: the usage clock needs a usage that grows over at least 2 tests (history add "
+                   f"--usage, or a usage column); or use --clock time" if rate is None else
+                   f"actuator {a}: the usage clock needs a usage at every test of the current unit; the test at "
+                   f"time_h={h.time_h[missing][0]:g} has none")
+            if required is None or a in required:
+                raise PrognosticsError(why)
+            refused[a] = why
+            continue
         u, t, k, std = _merge_equal(h.usage[keep], h.time_h[keep], h.k[keep], h.std[keep])
         # a repair restarts the trend at the first test at or after it, on this clock too
         repairs = []
@@ -134,4 +136,4 @@ def on_usage_clock(hist: History, required=None) -> tuple[History, dict[str, Usa
     fleet = usage_variance([x[3] for x in usage.values()])
     for a, (u, t, rate, own) in usage.items():
         clocks[a] = UsageClock(u, t, rate, max(usage_variance([own]), fleet), float(own[0][-1] - own[0][0]))
-    return out, clocks
+    return out, clocks, refused

@@ -661,7 +661,7 @@ def fleet_priors(history, settings: Settings | None = None,
     s = settings or load_settings()
     hist = as_history(history, s)
     if s.prognosis.clock == "usage":
-        hist, _ = on_usage_clock(hist, required=())
+        hist, _, _ = on_usage_clock(hist, required=())
     return _priors(hist, s, thresholds or threshold_values(s))
 
 
@@ -700,9 +700,17 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
     thr = thresholds or threshold_values(s)
     ids = [actuator] if actuator is not None else sorted(hist.actuators)
     clocks: dict = {}
+    refused: dict = {}
     if s.prognosis.clock == "usage":     # wear against the usage; hours from each unit's usage rate
         rates = {a: h.usage_per_hour() for a, h in hist.actuators.items()}
-        hist, clocks = on_usage_clock(hist, required=set(ids))
+        raw = hist
+        # one actuator asked for must be on the clock; of a fleet, one that is not gets no RUL
+        hist, clocks, refused = on_usage_clock(hist, required=set(ids) if actuator is not None else ())
+        ids = [a for a in ids if a not in refused]
+        if not ids:
+            first = next(iter(refused.values()))
+            raise PrognosticsError(first if len(refused) == 1 else
+                                   f"none of the {len(refused)} actuators can be put on the usage clock; {first}")
     else:
         rates = None
     plists = {f: _predict_fault(hist, ids, fi, thr[f], s) for fi, f in enumerate(FAULTS)}
@@ -747,7 +755,15 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
             o["clock"] = "usage"
         out[a] = {"faults": faults, "overall": o}
         detail[a] = {**preds[a], "overall": ov, "history": h}
-    obj = {"actuators": out}
+    for a, why in refused.items():              # no usage to put it on the clock: said, no RUL
+        n = len(raw.actuators[a].time_h)
+        out[a] = {"faults": {f: summary(FaultPrediction(None, None, threshold=thr[f], n_tests=n, reason=why), nc, None)
+                             for f in FAULTS},
+                  "overall": {**summary(FaultPrediction(None, None, n_tests=n, reason=why), nc, None),
+                              "dominant_fault": None, "clock": "usage"}}
+        for key in ("n_points", "onset_h", "k_last", "std_last"):
+            out[a]["overall"].pop(key, None)
+    obj = {"actuators": dict(sorted(out.items()))}
     return (obj, detail) if details else obj
 
 
