@@ -112,3 +112,19 @@ def test_prognose_clock_usage_from_the_command_line(tmp_path):
     q.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl\n" + "".join(f"B,{a},{b},0,0\n" for a, b in zip(t, k)))
     r = subprocess.run(run[:5] + [str(q), "--clock", "usage"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 2 and "actuator B: the usage clock needs a usage" in r.stderr
+
+
+def test_a_repair_on_the_ground_is_not_merged_away():
+    """A repair between two checks with no usage between them: the two tests share a usage but not
+    a trend. Merged (as tests at one usage are), K 0.7 and 0.02 read 0.36 and the trend restarted at
+    the mixture; now the later test's clock lies just past the earlier's and the trend restarts at it."""
+    t = np.arange(14) * 50.0
+    u = 2.0 * t
+    u[8:] -= 100.0                                    # no flying between 350 h and 400 h
+    k = np.where(np.arange(14) < 8, 0.001 * u, 0.0005 * (u - u[7]) + 0.02)
+    h = history({"A": (t, u, k)}, [("A", 375.0, "gm", "repair")])
+    a = on_usage_clock(h)[0].actuators["A"]
+    assert a.k[7, 0] == pytest.approx(0.7) and a.k[8, 0] == pytest.approx(0.02) and a.time_h[8] > a.time_h[7]
+    g = prognose(h, settings=USAGE, thresholds=THR)["actuators"]["A"]["faults"]["gm"]
+    assert g["n_tests"] == 6
+    assert g["rul_median_usage"] == pytest.approx((1.0 - 0.02) / 0.0005 - (u[-1] - u[7]), rel=0.05)

@@ -18,8 +18,9 @@ back in hours.
 Per actuator, the tests that count are those of the current unit (since its last replacement,
 or the last fall of its usage count: :meth:`store.ActuatorHistory.usage_window`); each must
 carry a usage. Tests at the same usage (no flying between two checks) are one test on this
-clock: their K are merged, weighted by 1/std^2 (std of the mean 1/sqrt(sum 1/std^2)). A repair
-restarts a trend at the usage of the first test at or after it.
+clock: their K are merged, weighted by 1/std^2 (std of the mean 1/sqrt(sum 1/std^2)) -- never
+across a repair (one on the ground between two checks): there the later test is put just past
+the earlier on the clock. A repair restarts a trend at the usage of the first test at or after it.
 """
 from __future__ import annotations
 
@@ -92,16 +93,22 @@ def usage_variance(units: list[tuple[np.ndarray, np.ndarray, float]]) -> float:
     return best
 
 
-def _merge_equal(u: np.ndarray, t: np.ndarray, k: np.ndarray, std: np.ndarray):
-    """Tests at the same usage as one: K weighted by 1/std^2 per fault."""
-    starts = np.r_[0, np.nonzero(np.diff(u) > 0)[0] + 1]
-    if len(starts) == len(u):
-        return u, t, k, std
+def _merge_equal(u: np.ndarray, t: np.ndarray, k: np.ndarray, std: np.ndarray, repairs_h):
+    """Tests at the same usage as one: K weighted by 1/std^2 per fault -- but never across a
+    maintenance (a repair on the ground between two checks): there the later test's clock is
+    nudged past the earlier's (by 1e-9 of the usage range), so the trend restarts after it."""
+    cut = np.array([np.any((t[j - 1] < np.asarray(repairs_h)) & (np.asarray(repairs_h) <= t[j]))
+                    for j in range(1, len(t))], bool) if len(repairs_h) else np.zeros(len(t) - 1, bool)
+    starts = np.r_[0, np.nonzero((np.diff(u) > 0) | cut)[0] + 1]
     w = 1.0 / np.square(np.maximum(std, 1e-12))
     ends = np.r_[starts[1:], len(u)]
     km = np.array([np.sum(w[a:b] * k[a:b], 0) / np.sum(w[a:b], 0) for a, b in zip(starts, ends)])
     sm = np.array([1.0 / np.sqrt(np.sum(w[a:b], 0)) for a, b in zip(starts, ends)])
-    return u[starts], t[ends - 1], km, sm
+    um = u[starts].astype(float)
+    eps = 1e-9 * max(float(np.ptp(u)), 1.0)
+    for j in range(1, len(um)):
+        um[j] = max(um[j], um[j - 1] + eps)
+    return um, t[ends - 1], km, sm
 
 
 def on_usage_clock(hist: History, required=None) -> tuple[History, dict[str, UsageClock], dict[str, str]]:
@@ -125,7 +132,8 @@ def on_usage_clock(hist: History, required=None) -> tuple[History, dict[str, Usa
                 raise PrognosticsError(why)
             refused[a] = why
             continue
-        u, t, k, std = _merge_equal(h.usage[keep], h.time_h[keep], h.k[keep], h.std[keep])
+        u, t, k, std = _merge_equal(h.usage[keep], h.time_h[keep], h.k[keep], h.std[keep],
+                                    [tr for tr, _f, _a in h.repairs])
         # a repair restarts the trend at the first test at or after it, on this clock too
         repairs = []
         for tr, f, act in h.repairs:
