@@ -487,9 +487,9 @@ def failure_warning(scores: list[UnitScore], interval_h: float, warn: float, err
     return out
 
 
-def score_fleet(scores: list[UnitScore], b: BenchSettings, warn: float = 0.05, error: float = 0.20) -> dict:
+def score_fleet(scores: list[UnitScore], b: BenchSettings, warn: float, error: float) -> dict:
     """Fleet metrics, ours and the naive baseline's, and their ratios; ``warn`` / ``error``: the
-    p_fail_next levels of :func:`failure_warning`."""
+    p_fail_next levels of :func:`failure_warning` (``prognosis.warn_p_fail`` / ``error_p_fail``)."""
     from ..prognostics import metrics as M
     out: dict = {"units": len(scores), "points": int(sum(len(sc.t_h) for sc in scores))}
     for name, pick in (("model", lambda sc: sc.p50), ("naive", lambda sc: sc.naive)):

@@ -276,6 +276,13 @@ class FaultPrediction:
             self._q = weighted_quantiles(self.samples, self.weights, (0.05, 0.5, 0.95))
         return self._q
 
+    def usage_quantiles(self) -> np.ndarray | None:
+        """(p05, median, p95) of the usage RUL where fitted on the usage clock, else None."""
+        if self.usage_samples is None:
+            return None
+        w = self.weights if self.usage_weights is None else self.usage_weights
+        return weighted_quantiles(self.usage_samples, w, (0.05, 0.5, 0.95))
+
     def p_fail(self, within_h: float) -> float | None:
         """P(RUL <= within_h), counting samples beyond the horizon as later: exact while
         ``within_h`` <= :attr:`horizon_h`, a lower bound beyond it (:meth:`p_fail_known`)."""
@@ -324,9 +331,7 @@ def summary(p: FaultPrediction, next_check_h: float, usage_per_h: float | None,
             # samples beyond the horizon may fail before the check or after it: a lower bound only
             d["p_fail_next_min"], d["p_fail_next"] = d["p_fail_next"], None
         if p.usage_samples is not None:         # fitted on the usage: its own quantiles
-            d["rul_p05_usage"], d["rul_median_usage"], d["rul_p95_usage"] = (
-                _num(v, 2) for v in weighted_quantiles(p.usage_samples, p.weights if p.usage_weights is None
-                                                       else p.usage_weights, (0.05, 0.5, 0.95)))
+            d["rul_p05_usage"], d["rul_median_usage"], d["rul_p95_usage"] = (_num(v, 2) for v in p.usage_quantiles())
         elif usage_per_h is not None:
             d["rul_p05_usage"], d["rul_median_usage"], d["rul_p95_usage"] = (
                 _num(v * usage_per_h, 2) for v in q)
@@ -671,6 +676,10 @@ def _priors(hist, s: Settings, thr: dict[str, float]) -> dict[str, FleetPrior | 
     return {f: _prior_of(ids, _predict_fault(hist, ids, fi, thr[f], s), s) for fi, f in enumerate(FAULTS)}
 
 
+#: F fields of a fault that the overall F does not carry
+_FAULT_ONLY = ("n_points", "onset_h", "k_last", "std_last", "onset_posterior")
+
+
 def prognose(history, actuator: str | None = None, next_check_h: float | None = None,
              settings: Settings | None = None, thresholds: dict[str, float] | None = None,
              details: bool = False, priors: dict[str, FleetPrior | None] | None = None):
@@ -702,7 +711,6 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
     clocks: dict = {}
     refused: dict = {}
     if s.prognosis.clock == "usage":     # wear against the usage; hours from each unit's usage rate
-        rates = {a: h.usage_per_hour() for a, h in hist.actuators.items()}
         raw = hist
         # one actuator asked for must be on the clock; of a fleet, one that is not gets no RUL
         hist, clocks, refused = on_usage_clock(hist, required=set(ids) if actuator is not None else ())
@@ -711,8 +719,6 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
             first = next(iter(refused.values()))
             raise PrognosticsError(first if len(refused) == 1 else
                                    f"none of the {len(refused)} actuators can be put on the usage clock; {first}")
-    else:
-        rates = None
     plists = {f: _predict_fault(hist, ids, fi, thr[f], s) for fi, f in enumerate(FAULTS)}
     if priors is None:
         # fleet prior from the members (enough points), applied to the actuators with few points;
@@ -736,7 +742,7 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
         if actuator is not None and a != actuator:
             continue
         h = hist.actuators[a]
-        rate = h.usage_per_hour() if rates is None else rates[a]
+        rate = clocks[a].rate if a in clocks else h.usage_per_hour()
         faults = {f: summary(preds[a][f], nc, rate, clocks.get(a)) for f in FAULTS}
         ov = overall(preds[a], len(h.time_h))
         if a in clocks and ov.samples is not None:     # the first fault to use its usage up
@@ -749,7 +755,7 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
             o["p_first"] = {f: round(v, 4) for f, v in ov.p_first.items()}
         if getattr(ov, "note", None):
             o["note"] = ov.note
-        for key in ("n_points", "onset_h", "k_last", "std_last", "onset_posterior"):
+        for key in _FAULT_ONLY:
             o.pop(key, None)
         if clocks:
             o["clock"] = "usage"
@@ -761,7 +767,7 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
                              for f in FAULTS},
                   "overall": {**summary(FaultPrediction(None, None, n_tests=n, reason=why), nc, None),
                               "dominant_fault": None, "clock": "usage"}}
-        for key in ("n_points", "onset_h", "k_last", "std_last"):
+        for key in _FAULT_ONLY:
             out[a]["overall"].pop(key, None)
     obj = {"actuators": dict(sorted(out.items()))}
     return (obj, detail) if details else obj
@@ -830,7 +836,7 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
         q = p.quantiles()
         # on the usage clock the axis is the usage: its RUL samples, not the hours
         ruls = p.samples if p.usage_samples is None else p.usage_samples
-        qa = q if p.usage_samples is None or q is None else weighted_quantiles(ruls, p.weights, (0.05, 0.5, 0.95))
+        qa = q if p.usage_samples is None else p.usage_quantiles()
         if p.series is not None and q is not None and p.fits is not None:
             cs, t0 = p.candidates[p.trend_candidate], p.candidate_onsets_h[p.trend_candidate]
             end = cs.tau_h[-1] + (qa[2] if np.isfinite(qa[2]) else 2 * cs.span_h)

@@ -185,13 +185,16 @@ def last_persistent_fall(t: np.ndarray, k: np.ndarray, std: np.ndarray, sigma: f
     b = np.where((b > 0) & (lo - first >= w) & (stop - i >= w), b, 0.0)
     here = np.fmax(need, sigma * _scatter(k, first, stop, 8 * w))
 
-    def level(start, end, width=w):                        # median K of [start, end) carried to t_i
-        return _nanmedian(_gather(k, start, end, width) - b[:, None] * (_gather(t, start, end, width) - t[i, None]))
+    def carried(start, end, width):                        # K of [start, end) carried to t_i
+        return _gather(k, start, end, width) - b[:, None] * (_gather(t, start, end, width) - t[i, None])
+
+    def level(start, end):                                 # their median
+        return _nanmedian(carried(start, end, w))
 
     def down(start, end, width=w):
         # K from i on carried to t_i: the median of 3 or more; of 2 (the second-to-last test), the
         # higher -- their mean is moved by one failed diagnosis, and a fall shows in both
-        x = _gather(k, start, end, width) - b[:, None] * (_gather(t, start, end, width) - t[i, None])
+        x = carried(start, end, width)
         return np.where(end - start >= 3, _nanmedian(x), np.nanmax(x, axis=1))
     before, after = level(i - w, i), down(i, np.minimum(i + w, n))
     earlier = np.where(i - w > lo, level(lo, np.maximum(i - w, lo)), np.nan)
