@@ -722,9 +722,13 @@ def synthetic_history_csv(path: str | Path, n_actuators: int = 1000, n_tests: in
 
 def time_prognose(n_actuators: int = 1000, path: str | Path | None = None) -> dict:
     """Wall time of ``prognose`` (thresholds included, computed afresh) on a synthetic history
-    (written to ``path``, default a temporary file)."""
+    (written to ``path``, default a temporary file); then the monitor's step on that history as
+    a SQLite file: its first fleet prior (every actuator fitted), and the step after another
+    actuator's test (read the file, refit the changed actuator, prognose its own)."""
     import tempfile
+    from ..prognostics.prior_cache import FleetPriorCache
     from ..prognostics.rul import prognose
+    from ..prognostics.store import HealthRecord, HistoryStore
     from ..prognostics.thresholds import _thresholds
     with tempfile.TemporaryDirectory() as tmp:
         p = synthetic_history_csv(path or Path(tmp) / f"history_{n_actuators}.csv", n_actuators)
@@ -733,9 +737,25 @@ def time_prognose(n_actuators: int = 1000, path: str | Path | None = None) -> di
         t0, c0 = time.perf_counter(), time.process_time()
         obj = prognose(p)
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        ids = sorted(obj["actuators"])
+        with HistoryStore(Path(tmp) / "history.db") as st:
+            st.import_csv(p)
+            cache = FleetPriorCache()
+            t0 = time.perf_counter()
+            prognose(st.history(), ids[0], priors=cache.priors(st.history()))
+            first = time.perf_counter() - t0
+            other = st.list_tests(ids[-1])[-1]
+            st.add_tests([HealthRecord(ids[-1], other["time_h"] + 40.0,
+                                       tuple(min(other[f"k_{f}"] + 0.02, 1.0) for f in FAULTS), (0.003,) * 3)])
+            t0 = time.perf_counter()
+            hist = st.history()
+            prognose(hist, ids[0], priors=cache.priors(hist))
+            step = time.perf_counter() - t0
     # on a shared machine the wall time grows with the load; the process's CPU time much less
     return {"actuators": len(obj["actuators"]), "series": 3 * n_actuators, "wall_time_s": wall,
-            "cpu_time_s": cpu, "load_1min_before": load0, "load_1min_after": os.getloadavg()[0]}
+            "cpu_time_s": cpu, "monitor_first_step_s": first, "monitor_step_s": step,
+            "monitor_step_refitted": cache.refitted,
+            "load_1min_before": load0, "load_1min_after": os.getloadavg()[0]}
 
 
 MARK_BEGIN = "<!-- bench rul: begin (made by the command below; do not edit by hand) -->"

@@ -26,6 +26,7 @@ from pathlib import Path
 
 from ..physics.faults import FAULT_KEYS
 from ..prognostics.config import PrognosticsError, Settings, load_settings
+from ..prognostics.prior_cache import FleetPriorCache
 
 #: The F fields of ``prognose --json`` the status carries, and the key they become.
 RUL_FIELDS = ("rul_median_h", "rul_p05_h", "rul_p95_h", "p_fail_next")
@@ -61,20 +62,8 @@ class PrognosisStep:
         if not 0 < self.warn_p_fail <= self.error_p_fail <= 1:
             raise PrognosticsError(f"need 0 < warn_p_fail ({self.warn_p_fail}) <= error_p_fail "
                                    f"({self.error_p_fail}) <= 1")
-        self._priors = None
-        self._priors_key = None
+        self._priors = FleetPriorCache(self.settings)
         self._lock = threading.Lock()
-
-    def _fleet_priors(self, store, hist):
-        """Priors from the whole history, recomputed only when another actuator gains or loses a test."""
-        from ..prognostics.rul import fleet_priors
-        key = store.conn.execute("SELECT COUNT(*), COALESCE(SUM(time_h), 0) FROM tests WHERE actuator_id != ?",
-                                 (self.actuator_id,)).fetchone()
-        key = (*key, store.conn.execute("SELECT COUNT(*) FROM maintenance").fetchone()[0])
-        if key != self._priors_key:
-            self._priors = fleet_priors(hist, self.settings)
-            self._priors_key = key
-        return self._priors
 
     def after_diagnosis(self, diagnosis, time_h: float, sim_time_s: float | None = None, response=None,
                         discrepancy: str | None = None, usage: float | None = None) -> Outcome:
@@ -94,7 +83,7 @@ class PrognosisStep:
                     hist = st.history()
                     if self.actuator_id in hist.actuators:
                         obj = prognose(hist, self.actuator_id, self.next_check_h, self.settings,
-                                       priors=self._fleet_priors(st, hist))
+                                       priors=self._priors.priors(hist))
                         out.prognosis = obj["actuators"][self.actuator_id]
             except (PrognosticsError, sqlite3.Error, OSError) as e:   # an unreadable, locked or full history file
                 out.error = str(e) if isinstance(e, PrognosticsError) else f"history {self.history}: {e}"

@@ -2,11 +2,14 @@
 
 Nothing here imports ROS. Modules (docs/prognostics.md has the method and the figures):
 
-* :mod:`.store`       -- SQLite health history (schema v1), HISTORY.csv import
+* :mod:`.store`       -- SQLite health history (schema v2), HISTORY.csv import
 * :mod:`.thresholds`  -- failure thresholds from the reference model and data/prognostics.yaml
 * :mod:`.degradation` -- linear / exponential / power / Wiener models on one Kalman filter
 * :mod:`.online`      -- the same filter updated one test at a time
+* :mod:`.scatter`     -- a history's own checks: failed diagnoses, unrecorded repairs, its noise
+* :mod:`.clock`       -- the usage clock: wear against usage, hours from the usage rate
 * :mod:`.rul`         -- RUL distributions per fault and overall, ``prognose``, ``plot_prognosis``
+* :mod:`.prior_cache` -- the fleet prior kept up to date one actuator at a time (the monitor)
 * :mod:`.metrics`     -- PHM metrics (alpha-lambda, prognostic horizon, RA, CRA, convergence, ...)
 * :mod:`.config`      -- settings and :class:`PrognosticsError` (bad input: CLI exit code 2)
 

@@ -646,11 +646,16 @@ def _predict_fault(hist, ids: list[str], fi: int, thr: float, s: Settings) -> li
     return plist
 
 
+def member_lives(ids: list[str], plist: list[FaultPrediction], s: Settings) -> dict[str, tuple[float, float]]:
+    """(life [h], sd of its log) of each actuator of ``ids`` that is a member of the fleet prior:
+    those with at least ``fleet.min_points`` points since onset (:func:`life_estimate`)."""
+    return {a: life_estimate(p) for a, p in zip(ids, plist)
+            if p.series is not None and p.n_points >= s.fleet.min_points}
+
+
 def _prior_of(ids: list[str], plist: list[FaultPrediction], s: Settings) -> FleetPrior | None:
     """Fleet prior from the members with enough points since onset."""
-    lives = {a: life_estimate(p) for a, p in zip(ids, plist)
-             if p.series is not None and p.n_points >= s.fleet.min_points}
-    return fleet_prior(lives, s.fleet.min_members)
+    return fleet_prior(member_lives(ids, plist, s), s.fleet.min_members)
 
 
 def fleet_priors(history, settings: Settings | None = None,
@@ -658,16 +663,12 @@ def fleet_priors(history, settings: Settings | None = None,
     """The fleet prior of each fault from every actuator of a history (what :func:`prognose` applies).
 
     Fitting the whole fleet is the expensive part of a one-actuator prognosis: a caller that
-    prognoses one actuator after each test (the monitor) computes this once and passes it as
-    ``prognose(..., priors=)`` until the rest of the fleet changes.
+    prognoses one actuator after each test (the monitor) keeps a
+    :class:`prior_cache.FleetPriorCache`, which refits only the actuators that changed, and
+    passes its priors as ``prognose(..., priors=)``.
     """
-    from .clock import on_usage_clock
-    from .store import as_history
-    s = settings or load_settings()
-    hist = as_history(history, s)
-    if s.prognosis.clock == "usage":
-        hist, _, _ = on_usage_clock(hist, required=())
-    return _priors(hist, s, thresholds or threshold_values(s))
+    from .prior_cache import FleetPriorCache
+    return FleetPriorCache(settings, thresholds).priors(history)
 
 
 def _priors(hist, s: Settings, thr: dict[str, float]) -> dict[str, FleetPrior | None]:

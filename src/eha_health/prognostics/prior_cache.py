@@ -1,0 +1,63 @@
+"""The fleet prior of a history kept up to date one actuator at a time.
+
+The fleet prior of a fault (:func:`rul.fleet_prior`) is the lognormal matched to its members'
+lives, each member's life coming from its own tests alone (:func:`rul.member_lives`: an
+actuator's prediction depends on its own data and the common random numbers, never on the
+other series of the batch). So when one actuator gains a test, only its life changes: a caller
+that prognoses after every test (the monitor on a history shared by a fleet) refits that one
+actuator instead of the whole fleet -- on 1000 actuators about 25 ms instead of about 20 s --
+and gets the same prior, bit for bit, as :func:`rul.fleet_priors` of the whole history.
+
+An actuator counts as changed when its tests (times, K, standard errors, usage) or its
+maintenance differ from the last call, on the clock of the settings (on the usage clock, the
+usage-clock history).
+"""
+from __future__ import annotations
+
+import hashlib
+
+from .config import Settings, load_settings
+from .thresholds import FAULTS, threshold_values
+
+
+def _fingerprint(h) -> bytes:
+    """Digest of one actuator's tests and maintenance (its whole input to a prediction)."""
+    d = hashlib.blake2b(digest_size=16)
+    for a in (h.time_h, h.k, h.std, h.usage):
+        d.update(a.tobytes())
+    d.update(repr(sorted(h.repairs)).encode())
+    return d.digest()
+
+
+class FleetPriorCache:
+    """Fleet priors of a history (``prognose(..., priors=)``), refitting only the actuators whose
+    tests or maintenance changed since the last :meth:`priors`."""
+
+    def __init__(self, settings: Settings | None = None, thresholds: dict[str, float] | None = None):
+        self.settings = settings or load_settings()
+        self.thresholds = thresholds or threshold_values(self.settings)
+        self._prints: dict[str, bytes] = {}
+        self._lives: dict[str, dict[str, tuple[float, float]]] = {f: {} for f in FAULTS}
+        self.refitted: int = 0      # actuators refitted by the last call
+
+    def priors(self, history) -> dict:
+        """{fault: FleetPrior | None} of ``history`` (a History, a HistoryStore or a path)."""
+        from .clock import on_usage_clock
+        from .rul import _predict_fault, fleet_prior, member_lives
+        from .store import as_history
+        s = self.settings
+        hist = as_history(history, s)
+        if s.prognosis.clock == "usage":
+            hist, _, _ = on_usage_clock(hist, required=())
+        prints = {a: _fingerprint(h) for a, h in hist.actuators.items()}
+        changed = sorted(a for a, fp in prints.items() if self._prints.get(a) != fp)
+        gone = set(self._prints) - set(prints)
+        for fi, f in enumerate(FAULTS):
+            lives = self._lives[f]
+            for a in gone.union(changed):
+                lives.pop(a, None)
+            if changed:
+                lives.update(member_lives(changed, _predict_fault(hist, changed, fi, self.thresholds[f], s), s))
+        self._prints, self.refitted = prints, len(changed)
+        # in actuator order, as rul.fleet_priors sums them: the same prior to the last bit
+        return {f: fleet_prior(dict(sorted(self._lives[f].items())), s.fleet.min_members) for f in FAULTS}
