@@ -74,6 +74,7 @@ def test_import_list_repair_prognose(db, tmp_path, capsys):
         assert a["overall"]["dominant_fault"] == "gm" and 0 <= a["overall"]["p_fail_next"] <= 1
         # no wear in fsj/bkl: null RUL with a reason
         assert a["faults"]["fsj"]["rul_median_h"] is None and a["faults"]["fsj"]["reason"]
+        assert "no degradation in the history (no repair recorded)" in a["faults"]["fsj"]["reason"]
 
     # a gm repair at the last test restarts its trend: too few tests since then for a RUL
     code, out, _ = run(capsys, ["history", "repair", "--history", str(db), "--actuator", "A1", "--fault", "gm",

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sqlite3
 import sys
 
 from . import analysis, bench, fleet, graph, model, prognostics
@@ -40,6 +41,9 @@ def main(argv=None) -> int:
         return args.func(args)
     except (UsageError, ValueError, FileNotFoundError) as e:
         print(f"eha-health {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except sqlite3.Error as e:   # a history file that fails under us (read-only, disk full): one line too
+        print(f"eha-health {args.command}: error: history database: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
     except BrokenPipeError:
         # the reader stopped early (`history list | head`): nothing of ours failed, so no traceback;

@@ -421,8 +421,9 @@ def overall(preds: dict[str, FaultPrediction], n_tests: int) -> FaultPrediction:
 
 # ----------------------------------------------------------------------------- per-fault preparation
 def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold: float, n_tests: int,
-                  s: Settings, check_last: bool = True) -> tuple[FaultPrediction, Series | None]:
-    """Degradation segment of one fault's post-repair tests, or the reason there is none.
+                  s: Settings, check_last: bool = True, repaired: bool = True) -> tuple[FaultPrediction, Series | None]:
+    """Degradation segment of one fault's post-repair tests, or the reason there is none
+    (``repaired``: whether a maintenance restarted the trend, for the wording of the reason).
 
     A fall of K that persists is a repair the history does not hold: the trend restarts there
     (:func:`scatter.last_persistent_fall`, ``unrecorded_repair_h``). Tests far off their
@@ -435,17 +436,19 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
         p.k_last, p.std_last = float(k[-1]), float(std[-1])
     std = np.maximum(std, s.prognosis.min_std)     # no diagnosis is exact; a zero variance is singular
     fall = last_persistent_fall(time_h, k, std, s.prognosis.outlier_sigma, s.prognosis.repair_fall)
+    repaired = repaired or fall is not None
+    since = "since the last repair" if repaired else "in the history (no repair recorded)"
     if fall is not None:
         p.unrecorded_repair_h = float(time_h[fall])
         time_h, k, std = time_h[fall:], k[fall:], std[fall:]
         n_tests = p.n_tests = len(k)
     if n_tests < s.prognosis.min_tests:
-        p.reason = (f"only {n_tests} test(s) since the last repair (fewer than {s.prognosis.min_tests}): no RUL")
+        p.reason = f"only {n_tests} test(s) {since} (fewer than {s.prognosis.min_tests}): no RUL"
         return p, None
     off, last = isolated_outliers(time_h, k, std, s.prognosis.outlier_sigma, s.prognosis.outlier_min_jump)
     if last and check_last:
         p.last_off_trend = True
-        p.without_last = prepare_fault(time_h[:-1], k[:-1], std[:-1], threshold, n_tests - 1, s, False)[0]
+        p.without_last = prepare_fault(time_h[:-1], k[:-1], std[:-1], threshold, n_tests - 1, s, False, repaired)[0]
     if off.any():
         # a failed or disturbed diagnosis: set aside, named in the output
         p.outliers_h = [float(t) for t in time_h[off]]
@@ -469,7 +472,7 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
             p.reason = f"K {k[-1]:.3f} at or beyond the threshold {threshold:.3f} with no trend: RUL 0"
             p.samples = np.zeros(s.prognosis.samples)   # as many as a fault with a RUL: overall takes the minimum per sample
             return p, None
-        p.reason = (f"no degradation since the last repair: K {k[-1]:.4f} +- {p.std_last:.4f} "
+        p.reason = (f"no degradation {since}: K {k[-1]:.4f} +- {p.std_last:.4f} "
                     f"(threshold {threshold:.3f}), no trend to extrapolate")
         p.no_trend = True
         return p, None
@@ -640,7 +643,8 @@ def _predict_fault(hist, ids: list[str], fi: int, thr: float, s: Settings) -> li
     for a in ids:
         h = hist.actuators[a]
         since = h.since_repair(f)
-        p, _ = prepare_fault(h.time_h[since], h.k[since, fi], h.std[since, fi], thr, int(since.sum()), s)
+        p, _ = prepare_fault(h.time_h[since], h.k[since, fi], h.std[since, fi], thr, int(since.sum()), s,
+                             repaired=not since.all())
         plist.append(p)
     predict_series(plist, np.full(len(plist), thr), fi, s)
     return plist

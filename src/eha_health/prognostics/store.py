@@ -39,6 +39,7 @@ import json
 import math
 import os
 import sqlite3
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -51,6 +52,8 @@ from .config import PrognosticsError, Settings, load_settings
 from .scatter import noise_estimate
 
 SCHEMA_VERSION = 2
+#: s a writer waits for another writer's transaction before it gives up (SQLite busy timeout)
+BUSY_TIMEOUT_S = 60.0
 MAINT_FAULTS = FAULT_KEYS + ("all",)
 ACTIONS = ("repair", "replace")
 
@@ -366,7 +369,7 @@ class HistoryStore:
         if not readonly:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
-            self.conn = sqlite3.connect(str(self.path), timeout=60.0, isolation_level=None)
+            self.conn = sqlite3.connect(str(self.path), timeout=BUSY_TIMEOUT_S, isolation_level=None)
             # text the store did not write (a damaged page) must not raise mid-query
             self.conn.text_factory = lambda b: b.decode("utf-8", "replace")
             ver = self.conn.execute("PRAGMA user_version").fetchone()[0]
@@ -394,18 +397,45 @@ class HistoryStore:
             else:
                 self._check_columns()
             return
-        self.conn.execute("PRAGMA journal_mode=WAL")
-        self.conn.execute("PRAGMA synchronous=FULL")
-        self.conn.execute("PRAGMA foreign_keys=ON")
-        if ver == 0:
-            with self._immediate():
-                for stmt in filter(str.strip, _SCHEMA.split(";")):
-                    self.conn.execute(stmt)
-                self._stamp_version()
-        else:
-            self._check_columns()
-            if ver < SCHEMA_VERSION:
-                self._migrate()
+        try:
+            self._to_wal()
+            self.conn.execute("PRAGMA synchronous=FULL")
+            self.conn.execute("PRAGMA foreign_keys=ON")
+            if ver == 0:
+                with self._immediate():
+                    if self.schema_version == 0:     # not created meanwhile by another writer
+                        for stmt in filter(str.strip, _SCHEMA.split(";")):
+                            self.conn.execute(stmt)
+                        self._stamp_version()
+            else:
+                self._check_columns()
+                if ver < SCHEMA_VERSION:
+                    self._migrate()
+        except BaseException:
+            self.conn.close()
+            raise
+
+    def _to_wal(self) -> None:
+        """Switch the file to WAL. A new file that several writers open at once: SQLite refuses
+        the switch at once (SQLITE_BUSY without its busy handler, which could deadlock) while
+        another holds a lock, so the switch is tried again, with backoff, up to the busy timeout."""
+        deadline, pause = time.monotonic() + BUSY_TIMEOUT_S, 0.005
+        while True:
+            try:
+                self.conn.execute("PRAGMA journal_mode=WAL")
+                return
+            except sqlite3.OperationalError as e:
+                if not _busy(e) or time.monotonic() > deadline:
+                    raise self._locked(e) from None
+                time.sleep(pause)
+                pause = min(2 * pause, 0.25)
+
+    def _locked(self, e: sqlite3.OperationalError) -> Exception:
+        """A busy file as one line that names it (the CLI's exit code 2), other errors as they are."""
+        if not _busy(e):
+            return e
+        return PrognosticsError(f"{self.path}: the history is locked by another process (waited "
+                                f"{BUSY_TIMEOUT_S:g} s: {e}); nothing was written")
 
     def _migrate(self) -> None:
         """Version 1 -> 2: the std columns may be NULL (not stated). SQLite cannot change a
@@ -425,7 +455,10 @@ class HistoryStore:
     @contextlib.contextmanager
     def _immediate(self):
         """One write transaction (BEGIN IMMEDIATE): all of it is committed, or none of it."""
-        self.conn.execute("BEGIN IMMEDIATE")
+        try:
+            self.conn.execute("BEGIN IMMEDIATE")
+        except sqlite3.OperationalError as e:
+            raise self._locked(e) from None
         try:
             yield
             self.conn.execute("COMMIT")
@@ -659,12 +692,26 @@ class HistoryStore:
         return [dict(zip(cols, r)) for r in self.conn.execute(q + " ORDER BY actuator_id, time_h", args)]
 
     def history(self) -> History:
-        """All tests and maintenance as arrays for the prognostics."""
+        """All tests and maintenance as arrays for the prognostics, read in one transaction (one
+        snapshot: a writer between the two reads must not give a repair without its test)."""
         q = f"SELECT actuator_id, time_h, {','.join(K_COLUMNS + STD_COLUMNS)}, usage FROM tests"
-        recs = [HealthRecord(a, t, (g, f, b), (sg, sf, sb), usage=u) for a, t, g, f, b, sg, sf, sb, u in
-                self.conn.execute(q)]
-        reps = list(self.conn.execute("SELECT actuator_id, time_h, fault, action FROM maintenance"))
+        try:
+            self.conn.execute("BEGIN")
+        except sqlite3.OperationalError as e:
+            raise self._locked(e) from None
+        try:
+            recs = [HealthRecord(a, t, (g, f, b), (sg, sf, sb), usage=u) for a, t, g, f, b, sg, sf, sb, u in
+                    self.conn.execute(q)]
+            reps = list(self.conn.execute("SELECT actuator_id, time_h, fault, action FROM maintenance"))
+        finally:
+            self.conn.execute("COMMIT")
         return _history_from_records(recs, reps, self.settings.history.default_std)
+
+
+def _busy(e: sqlite3.OperationalError) -> bool:
+    """Whether an SQLite error is another connection's lock (SQLITE_BUSY / SQLITE_LOCKED)."""
+    return (getattr(e, "sqlite_errorcode", 0) & 0xFF) in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED) or \
+        "locked" in str(e) or "busy" in str(e)
 
 
 def as_history(obj, settings: Settings | None = None) -> History:
