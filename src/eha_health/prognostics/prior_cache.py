@@ -35,7 +35,7 @@ class FleetPriorCache:
 
     def __init__(self, settings: Settings | None = None, thresholds: dict[str, float] | None = None):
         self.settings = settings or load_settings()
-        self.thresholds = thresholds or threshold_values(self.settings)
+        self.thresholds = thresholds      # None: the settings' (the reference model's), at the first call
         self._prints: dict[str, bytes] = {}
         self._lives: dict[str, dict[str, tuple[float, float]]] = {f: {} for f in FAULTS}
         self.refitted: int = 0      # actuators refitted by the last call
@@ -46,6 +46,8 @@ class FleetPriorCache:
         from .rul import _predict_fault, fleet_prior, member_lives
         from .store import as_history
         s = self.settings
+        if self.thresholds is None:
+            self.thresholds = threshold_values(s)
         hist = as_history(history, s)
         if s.prognosis.clock == "usage":
             hist, _, _ = on_usage_clock(hist, required=())
