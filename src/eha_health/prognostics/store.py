@@ -695,10 +695,7 @@ class HistoryStore:
         """All tests and maintenance as arrays for the prognostics, read in one transaction (one
         snapshot: a writer between the two reads must not give a repair without its test)."""
         q = f"SELECT actuator_id, time_h, {','.join(K_COLUMNS + STD_COLUMNS)}, usage FROM tests"
-        try:
-            self.conn.execute("BEGIN")
-        except sqlite3.OperationalError as e:
-            raise self._locked(e) from None
+        self.conn.execute("BEGIN")      # deferred: the snapshot is taken by the first read
         try:
             recs = [HealthRecord(a, t, (g, f, b), (sg, sf, sb), usage=u) for a, t, g, f, b, sg, sf, sb, u in
                     self.conn.execute(q)]
@@ -710,8 +707,7 @@ class HistoryStore:
 
 def _busy(e: sqlite3.OperationalError) -> bool:
     """Whether an SQLite error is another connection's lock (SQLITE_BUSY / SQLITE_LOCKED)."""
-    return (getattr(e, "sqlite_errorcode", 0) & 0xFF) in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED) or \
-        "locked" in str(e) or "busy" in str(e)
+    return (getattr(e, "sqlite_errorcode", 0) & 0xFF) in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED)
 
 
 def as_history(obj, settings: Settings | None = None) -> History:
