@@ -286,6 +286,68 @@ def test_a_monitor_log_of_several_tests_is_one_recording_per_test(client, tmp_pa
     assert cli_main(["history", "add", str(bag), "--test", "2", "--actuator", "ACT-9", "--history", str(db),
                      "--quiet"]) == 0
     assert "already in" in capsys.readouterr().out and len(_rows(db)) == 3
+    # the test the monitor appended live, given another time or actuator: refused, not stored twice
+    for other in (["--actuator", "ACT-9", "--time-h", "5"], ["--actuator", "OTHER", "--time-h", "400"]):
+        assert cli_main(["history", "add", str(bag), "--test", "1", "--history", str(db), "--quiet", *other]) == 2
+        err = capsys.readouterr().err
+        assert "the monitor appended it live for actuator ACT-9 at time_h 100" in err, err
+    assert cli_main(["history", "add", str(bag), "--test", "3", "--actuator", "ACT-9 ", "--time-h", "400",
+                     "--history", str(db), "--quiet"]) == 2
+    assert "leading or trailing spaces" in capsys.readouterr().err and len(_rows(db)) == 3
+
+
+def _monitor_log(path, truth: dict, records: dict, actuator="ACT-7", extra: dict | None = None):
+    """A monitor log of tests ``truth`` {test id: K_GM} whose ``records`` {test id: time_h} it appended."""
+    from eha_health import Faults, load, simulate
+    from eha_health.io.bagrun import write_run
+    from eha_health.io.mcaplog import BagWriter
+    p = load("reference").with_effect_names(["sensor_noise"])
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with BagWriter(path) as w:
+        w.add_metadata("eha_health", {"actuator_id": actuator, **(extra or {})})
+        for tid, k in truth.items():
+            write_run(w, simulate(kind="reference", faults=Faults(k_gm=k), params=p, seed=tid), test_id=tid,
+                      start_ns=tid * 8_000_000_000)
+            if tid in records:
+                w.add_metadata(f"history/test_{tid}", {"time_h": f"{records[tid]}", "sim_time_s": f"{8.0 * tid}"})
+    return path
+
+
+def test_a_monitor_log_with_one_appended_test_of_several_stores_that_test(client, tmp_path):
+    """A monitor whose store refused its first two tests logs three windows and one record
+    (history/test_3): before, the batch stored window 1's diagnosis under test 3's time."""
+    bag = _monitor_log(tmp_path / "log.mcap", {1: 0.1, 2: 0.3, 3: 0.5}, {3: 30.0})
+    s = diagnose_fleet(find_recordings([bag]), tmp_path / "h.sqlite", method=METHOD, client=client)
+    assert (s["diagnosed"], s["skipped"], s["failed"]) == (1, 0, 0), s
+    (row,) = _rows(tmp_path / "h.sqlite")
+    assert (row["actuator_id"], row["time_h"], row["sim_time_s"]) == ("ACT-7", 30.0, 24.0)
+    assert row["k_gm"] == pytest.approx(0.5, abs=0.02)
+
+
+def test_every_recording_of_a_batch_is_counted_and_none_is_filed_under_another_actuator(client, tmp_path):
+    """diagnosed + skipped + failed = recordings, also where the store gets a test only once it is
+    diagnosed (two files of one test: a log and a copy with one more metadata record); a file the
+    history holds for another actuator fails, as `history add` refuses it; a test earlier than its
+    actuator's latest fails before its diagnosis; a manifest may list a test once."""
+    a = _monitor_log(tmp_path / "a" / "log.mcap", {1: 0.2}, {1: 10.0})
+    b = _monitor_log(tmp_path / "b" / "log.mcap", {1: 0.2}, {1: 10.0}, extra={"note": "copied"})
+    db = tmp_path / "h.sqlite"
+    s = diagnose_fleet(find_recordings([a.parent, b.parent]), db, method=METHOD, client=client)
+    assert (s["recordings"], s["diagnosed"], s["skipped"], s["failed"]) == (2, 1, 1, 0), s
+    assert len(_rows(db)) == 1
+    (tmp_path / "a" / "manifest.csv").write_text("actuator_id,time_h,path\nOTHER,50,log.mcap\n")
+    s = diagnose_fleet(find_recordings([a.parent]), db, method=METHOD, client=client)
+    assert (s["diagnosed"], s["skipped"], s["failed"]) == (0, 0, 1), s
+    assert "the same recording is in the history for actuator ACT-7, not OTHER" in s["failures"][0]["reason"]
+    late = _monitor_log(tmp_path / "c" / "log.mcap", {1: 0.2}, {1: 5.0}, extra={"note": "an earlier test"})
+    s = diagnose_fleet(find_recordings([late]), db, method=METHOD, client=client)
+    assert (s["diagnosed"], s["skipped"], s["failed"], s["batch_time_s"]) == (0, 0, 1, 0.0), s
+    assert "not stored" in s["failures"][0]["reason"] and len(_rows(db)) == 1
+    (tmp_path / "a" / "manifest.csv").write_text("actuator_id,time_h,path\nX,50,log.mcap\nY,60,log.mcap\n")
+    with pytest.raises(FleetError, match="line 3.*log.mcap is listed already"):
+        read_manifest(tmp_path / "a" / "manifest.csv")
+    with pytest.raises(FleetError, match="HISTORY.csv is read, not written"):
+        diagnose_fleet(find_recordings([b.parent]), tmp_path / "h.csv", method=METHOD, client=client)
 
 
 def test_successive_batches_on_one_client_lose_no_task(bags, client, tmp_path):

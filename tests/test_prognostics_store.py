@@ -455,3 +455,20 @@ def test_a_history_is_read_as_one_snapshot(tmp_path):
     assert len(h.time_h) == 6 and h.repairs == []
     h = as_history(db).actuators["A1"]
     assert len(h.time_h) == 7 and h.since_repair("gm").sum() == 1
+
+
+def test_no_store_is_made_of_a_csv_path_a_bad_import_or_an_id_with_spaces(tmp_path, capsys):
+    from eha_health.cli import main
+    with pytest.raises(PrognosticsError, match="HISTORY.csv is read, not written"):
+        HistoryStore(tmp_path / "h.csv")
+    assert not (tmp_path / "h.csv").exists()
+    bad = tmp_path / "bad.csv"
+    bad.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl\nA1,10,2.0,0,0\n")
+    assert main(["history", "import", str(bad), "--history", str(tmp_path / "new.sqlite")]) == 2
+    assert "k_gm" in capsys.readouterr().err and not (tmp_path / "new.sqlite").exists()
+    # a CSV's cells are stripped when read; an id given otherwise (the monitor's parameter, the API) is checked
+    with HistoryStore(tmp_path / "new.sqlite") as st:
+        st.add_tests([rec("A1", 10.0)])
+        with pytest.raises(PrognosticsError, match="actuator id 'A1 ' has leading or trailing spaces"):
+            st.add_tests([rec("A1 ", 20.0)])
+        assert [r["actuator_id"] for r in st.list_tests()] == ["A1"]

@@ -49,10 +49,11 @@ def _finite(v: float | None, name: str, minimum: float = 0.0) -> None:
 
 def cmd_history_add(args) -> int:
     from ..identification.diagnose import diagnose
-    from ..prognostics.store import HealthRecord, HistoryStore, recording_hash
+    from ..prognostics.store import HealthRecord, HistoryStore, check_actuator_id, recording_hash
     path = Path(args.run)
     if not path.is_file():
         raise UsageError(f"{path}: no such recording")
+    check_actuator_id(args.actuator, "--actuator")
     _finite(args.time_h, "--time-h")
     _finite(args.usage, "--usage")
     settings = _settings(args)
@@ -60,13 +61,15 @@ def cmd_history_add(args) -> int:
     r, _, notes = load_test(path, args.test)
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
-    time_h, usage, sim_s = args.time_h, args.usage, None
+    time_h, usage, sim_s, meta, live = args.time_h, args.usage, None, {}, None
     if path.suffix.lower() == ".mcap":
         from ..io.bagrun import history_times
+        from ..io.mcaplog import bag_metadata
         meta = history_times(path, r.meta.get("test_id"))
         time_h = meta.get("time_h") if time_h is None else time_h
         usage = meta.get("usage") if usage is None else usage
         sim_s = meta.get("sim_time_s")
+        live = bag_metadata(path).get("eha_health", {}).get("actuator_id") if "time_h" in meta else None
     if time_h is None:
         raise UsageError(f"{path}: no --time-h and the recording carries no operating time "
                          f"(MCAP metadata history/test_<id>)")
@@ -83,6 +86,12 @@ def cmd_history_add(args) -> int:
             print(f"{path}{'' if tid is None else f' test {tid}'} is already in {db} (actuator {t['actuator_id']}, "
                   f"time_h {t['time_h']:g}): nothing added")
             return 0
+        if "time_h" in meta and (live or args.actuator, meta["time_h"]) != (args.actuator, time_h) and \
+                st.holds_test(live or args.actuator, meta["time_h"], sim_s):
+            # the monitor appended this test live; another --actuator / --time-h would store it twice
+            raise UsageError(f"{path}{'' if tid is None else f' test {tid}'} is already in the history: the monitor "
+                             f"appended it live for actuator {live or args.actuator} at time_h {meta['time_h']:g} "
+                             f"(metadata history/test_{tid}), not {args.actuator} at {time_h:g}")
         st.check_next_time(args.actuator, time_h, sim_s, str(path))   # before the diagnosis, not after it
         d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=progress(args))
         notes = st.usage_notes([HealthRecord(args.actuator, float(time_h), (0.0,) * 3, (0.0,) * 3, usage=usage)])
@@ -130,8 +139,8 @@ def cmd_history_import(args) -> int:
     from ..prognostics.store import HistoryStore, read_history_csv
     settings = _settings(args)
     db = _db(args, False, settings)
+    recs = read_history_csv(args.file, settings)     # a bad file creates no store
     with HistoryStore(db, settings) as st:
-        recs = read_history_csv(args.file, settings)
         notes = st.usage_notes(recs)
         n = st.import_csv(args.file, recs)
         total = st.count_tests()

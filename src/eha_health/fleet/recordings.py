@@ -74,7 +74,7 @@ def read_manifest(path: str | Path) -> list[Recording]:
     if not path.is_file():
         raise FleetError(f"{path}: no such manifest")
     root = path.parent.resolve()
-    out = []
+    out, listed = [], {}
     for where, row in csv_rows(path, MANIFEST_REQUIRED, FleetError,
                                need=f"a manifest needs {', '.join(MANIFEST_REQUIRED)}"):
         if not row["actuator_id"]:
@@ -93,6 +93,10 @@ def read_manifest(path: str | Path) -> list[Recording]:
             if not str(row["test"]).isdigit():
                 raise FleetError(f"{where}: test {row['test']!r} is not a test window id (an integer >= 0)")
             test = int(row["test"])
+        if (full, test) in listed:
+            raise FleetError(f"{where}: {row['path']}{'' if test is None else f' test {test}'} is listed "
+                             f"already ({listed[(full, test)]}): one row per recorded test")
+        listed[(full, test)] = where
         out.append(Recording(full, row["actuator_id"], _number(row["time_h"], where, "time_h"),
                              _number(row.get("usage"), where, "usage", optional=True),
                              row.get("usage_unit") or None, truth, where, window=test))
@@ -139,7 +143,7 @@ def _identity_fields(raw: dict, where: str) -> dict:
 def bag_windows(rec: Recording) -> list[Recording]:
     """A bag of several tests as one recording per test: a monitor log holds a
     :data:`HISTORY_META` record (time, usage) per test it appended to a history. A CSV, a bag
-    with at most one such record, or a recording a manifest identified stays as it is (a
+    of one test, or a recording a manifest identified stays as it is (a
     manifest row's ``test`` names the window, checked here; without it the row is the file's
     first window)."""
     if rec.window is not None:
@@ -162,8 +166,16 @@ def bag_windows(rec: Recording) -> list[Recording]:
         return [rec]
     prefix = HISTORY_META.format("")
     ids = sorted(int(n[len(prefix):]) for n in md if n.startswith(prefix) and n[len(prefix):].isdigit())
-    if len(ids) < 2:
+    if not ids:
         return [rec]
+    if len(ids) == 1:
+        # one record: the file is the recording only if the bag holds one test; else the record's
+        # window is (a monitor that appended only its third test: the first window is not it)
+        try:
+            if len(window_ids(rec.path)) <= 1:
+                return [rec]
+        except (OSError, ValueError):      # an unreadable bag fails in the batch, saying why
+            return [rec]
     actuator = dict(md.get(META_RECORD, {})).get("actuator_id")
     out = []
     for i in ids:       # each test's time and usage from its record, the actuator from the bag's

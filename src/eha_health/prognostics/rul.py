@@ -824,6 +824,8 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
     d = detail[actuator]
     h = d["history"]                      # on the clock of the fit: hours, or usage
     unit = "usage" if s.prognosis.clock == "usage" else "h"
+    # an id of any length is legal; in a title a long one would push the RUL out of sight
+    name = actuator if len(actuator) <= 40 else actuator[:37] + "..."
     fig, axes = plt.subplots(3, 1, figsize=(9, 10), sharex=True)
     for ax, (fi, f) in zip(axes, enumerate(FAULTS)):
         p = d[f]
@@ -861,10 +863,10 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
                          p.weights[np.isfinite(ruls)], color="C1", alpha=0.35)
                 ax2.set_yticks([])
             hours = "" if unit == "h" else f" = {q[1]:.0f} h [{q[0]:.0f}, {q[2]:.0f}]"
-            ax.set_title(f"{actuator} {f}: RUL median {qa[1]:.0f} {unit} [{qa[0]:.0f}, {qa[2]:.0f}]{hours} (5-95 %)",
+            ax.set_title(f"{name} {f}: RUL median {qa[1]:.0f} {unit} [{qa[0]:.0f}, {qa[2]:.0f}]{hours} (5-95 %)",
                          fontsize=9)
         else:
-            ax.set_title(f"{actuator} {f}: {p.reason}", fontsize=8)
+            ax.set_title(f"{name} {f}: {p.reason}", fontsize=8)
         ax.set_ylabel(f"K_{f.upper()}")
         ax.legend(fontsize=7, loc="upper left")
     axes[-1].set_xlabel(("usage (the fit's clock)" if unit == "usage" else "time [h]")

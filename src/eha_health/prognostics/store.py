@@ -178,9 +178,17 @@ class HealthRecord:
                 self.source_hash or self.content_hash(), self.software_version or _version())
 
 
-def _check_record(r: HealthRecord, where: str) -> None:
-    if not isinstance(r.actuator_id, str) or not r.actuator_id.strip():
+def check_actuator_id(actuator_id, where: str) -> None:
+    """An actuator id must be a non-empty string without leading or trailing spaces ('A1 ' would
+    be an actuator of its own beside 'A1')."""
+    if not isinstance(actuator_id, str) or not actuator_id.strip():
         raise PrognosticsError(f"{where}: empty actuator id")
+    if actuator_id != actuator_id.strip():
+        raise PrognosticsError(f"{where}: actuator id {actuator_id!r} has leading or trailing spaces")
+
+
+def _check_record(r: HealthRecord, where: str) -> None:
+    check_actuator_id(r.actuator_id, where)
     if not isinstance(r.time_h, (int, float)) or not math.isfinite(r.time_h) or r.time_h < 0:
         raise PrognosticsError(f"{where}: time_h must be a finite number of hours >= 0, got {r.time_h!r}")
     for name, v in zip(FAULT_KEYS, r.k):
@@ -367,6 +375,9 @@ class HistoryStore:
         self.path = Path(path) if path is not None else default_history_path(self.settings)
         self.readonly = readonly
         if not readonly:
+            if self.path.suffix.lower() == ".csv":     # it would be a SQLite file no command reads as one
+                raise PrognosticsError(f"{self.path}: a HISTORY.csv is read, not written: the history to write "
+                                       f"to is a SQLite file (import a CSV into one: eha-health history import)")
             self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
             self.conn = sqlite3.connect(str(self.path), timeout=BUSY_TIMEOUT_S, isolation_level=None)
@@ -521,12 +532,16 @@ class HistoryStore:
     def count_tests(self) -> int:
         return int(self.conn.execute("SELECT COUNT(*) FROM tests").fetchone()[0])
 
-    def check_next_time(self, actuator_id: str, time_h: float, sim_time_s: float | None, where: str) -> None:
+    def check_next_time(self, actuator_id: str, time_h: float, sim_time_s: float | None, where: str,
+                        latest: dict[str, float] | None = None) -> None:
         """Raise the error :meth:`add_tests` would give a test of ``actuator_id`` at ``time_h``
-        (out of order, or a duplicate), before the work of diagnosing it; a test the store holds by
-        another path (:meth:`holds_test`) passes: adding it is a no-op."""
+        (a bad actuator id or time, out of order, a duplicate), before the work of diagnosing it; a test the store holds by
+        another path (:meth:`holds_test`) passes: adding it is a no-op. ``latest``: the store's
+        :meth:`latest_times`, where the caller checks many."""
+        r = HealthRecord(actuator_id, float(time_h), (0.0,) * 3, (0.0,) * 3)
+        _check_record(r, where)
         if not self.holds_test(actuator_id, time_h, sim_time_s):
-            _check_order([(where, HealthRecord(actuator_id, float(time_h), (0.0,) * 3, (0.0,) * 3))], self._latest())
+            _check_order([(where, r)], self.latest_times() if latest is None else latest)
 
     def usage_notes(self, records: list[HealthRecord]) -> list[str]:
         """Notes for records whose usage is below the actuator's last stored one (since its last
@@ -555,7 +570,8 @@ class HistoryStore:
         if self.readonly:
             raise PrognosticsError(f"{self.path}: opened read-only; nothing written")
 
-    def _latest(self) -> dict[str, float]:
+    def latest_times(self) -> dict[str, float]:
+        """Each actuator's latest stored test time [h]."""
         return {a: t for a, t in self.conn.execute("SELECT actuator_id, MAX(time_h) FROM tests GROUP BY actuator_id")}
 
     def add_tests(self, records: list[HealthRecord], wheres: list[str] | None = None) -> int:
@@ -589,7 +605,7 @@ class HistoryStore:
                     continue
                 seen.add(r.source_hash)
                 new.append((w, r))
-            _check_order(new, self._latest())
+            _check_order(new, self.latest_times())
             q = f"INSERT INTO tests ({','.join(TEST_COLUMNS)}) VALUES ({','.join('?' * len(TEST_COLUMNS))})"
             self.conn.executemany(q, [r.row() for _, r in new])
         return len(new)
@@ -644,7 +660,7 @@ class HistoryStore:
             raise PrognosticsError(f"unknown maintenance action {action!r}: choose repair or replace")
         if not isinstance(time_h, (int, float)) or not math.isfinite(time_h) or time_h < 0:
             raise PrognosticsError(f"repair time_h must be a finite number of hours >= 0, got {time_h!r}")
-        latest = self._latest()
+        latest = self.latest_times()
         if actuator_id not in latest:
             raise PrognosticsError(f"unknown actuator {actuator_id!r}: it has no tests in {self.path}")
         if time_h > latest[actuator_id]:
