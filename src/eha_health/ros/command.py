@@ -187,8 +187,13 @@ class CommandNode(Node):
         sample would otherwise take the end of the test with it."""
         if not self.context.ok():
             return      # shut down already (SIGINT): nothing can be delivered any more
-        for pub in (self.pub_cmd, self.pub_win):
-            pub.wait_for_all_acked(Duration(seconds=timeout_s))
+        try:
+            for pub in (self.pub_cmd, self.pub_win):
+                pub.wait_for_all_acked(Duration(seconds=timeout_s))
+        except KeyboardInterrupt:
+            # told to stop while waiting (`launch` stops every node once the monitor is done; rclpy's
+            # handler is gone by teardown): stop waiting, as for a SIGINT before it -- no traceback
+            pass
 
     def _maybe_start(self) -> None:
         period = self.get_parameter("period_s").value
