@@ -342,7 +342,11 @@ def test_every_recording_of_a_batch_is_counted_and_none_is_filed_under_another_a
     late = _monitor_log(tmp_path / "c" / "log.mcap", {1: 0.2}, {1: 5.0}, extra={"note": "an earlier test"})
     s = diagnose_fleet(find_recordings([late]), db, method=METHOD, client=client)
     assert (s["diagnosed"], s["skipped"], s["failed"], s["batch_time_s"]) == (0, 0, 1, 0.0), s
-    assert "not stored" in s["failures"][0]["reason"] and len(_rows(db)) == 1
+    assert "not stored" in s["failures"][0]["reason"] and "--backfill" in s["failures"][0]["reason"]
+    assert len(_rows(db)) == 1
+    s = diagnose_fleet(find_recordings([late]), db, method=METHOD, client=client, backfill=True)
+    assert (s["diagnosed"], s["skipped"], s["failed"]) == (1, 0, 0), s
+    assert [r["time_h"] for r in _rows(db)] == [5.0, 10.0]
     (tmp_path / "a" / "manifest.csv").write_text("actuator_id,time_h,path\nX,50,log.mcap\nY,60,log.mcap\n")
     with pytest.raises(FleetError, match="line 3.*log.mcap is listed already"):
         read_manifest(tmp_path / "a" / "manifest.csv")

@@ -472,3 +472,33 @@ def test_no_store_is_made_of_a_csv_path_a_bad_import_or_an_id_with_spaces(tmp_pa
         with pytest.raises(PrognosticsError, match="actuator id 'A1 ' has leading or trailing spaces"):
             st.add_tests([rec("A1 ", 20.0)])
         assert [r["actuator_id"] for r in st.list_tests()] == ["A1"]
+
+
+def test_a_test_older_than_the_latest_goes_in_only_with_backfill(tmp_path, capsys):
+    """The store takes an actuator's tests in time order; a recording that failed once and was
+    fixed, or an older log found later, goes in with backfill -- where the actuator has no test at
+    that time -- and the history reads it in its place."""
+    from eha_health.cli import main
+    db = tmp_path / "h.sqlite"
+    with HistoryStore(db) as st:
+        st.add_tests([rec("A1", t, (0.01 * t / 10, 0.0, 0.0), usage=2.0 * t) for t in (0.0, 10.0, 30.0, 40.0)])
+        st.record_repair("A1", "gm", 40.0)
+        before = snapshot(db)
+        with pytest.raises(PrognosticsError, match="times out of order.*--backfill"):
+            st.add_tests([rec("A1", 20.0, (0.02, 0.0, 0.0), usage=40.0)])
+        assert snapshot(db) == before
+        with pytest.raises(PrognosticsError, match="duplicate row.*time_h=30"):
+            st.add_tests([rec("A1", 30.0, (0.5, 0.0, 0.0))], backfill=True)
+        assert st.add_tests([rec("A1", 20.0, (0.02, 0.0, 0.0), usage=40.0)], backfill=True) == 1
+        assert st.add_tests([rec("A1", 20.0, (0.02, 0.0, 0.0), usage=40.0)], backfill=True) == 0   # the same again
+        # a usage above the next stored test's is kept, with a note
+        assert "below the 99 of the test back-filled at time_h=25" in " ".join(
+            st.usage_notes([rec("A1", 25.0, usage=99.0)]))
+    h = as_history(db).actuators["A1"]
+    assert h.time_h.tolist() == [0.0, 10.0, 20.0, 30.0, 40.0] and h.since_repair("gm").sum() == 1
+    old = tmp_path / "old.csv"
+    old.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl\nA1,5,0.005,0,0\nA1,15,0.015,0,0\n")
+    assert main(["history", "import", str(old), "--history", str(db)]) == 2
+    assert "--backfill" in capsys.readouterr().err
+    assert main(["history", "import", str(old), "--history", str(db), "--backfill"]) == 0
+    assert as_history(db).actuators["A1"].time_h.tolist() == [0.0, 5.0, 10.0, 15.0, 20.0, 30.0, 40.0]

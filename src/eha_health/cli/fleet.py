@@ -30,7 +30,7 @@ def cmd_fleet_diagnose(args) -> int:
     recs = read_manifest(args.manifest) if args.manifest else find_recordings(args.paths)
     history = args.history or default_history_path()
     s = diagnose_fleet(recs, history, scheduler=args.scheduler, workers=workers, method=args.method,
-                       seed=args.seed, discrepancy=args.discrepancy, progress=progress(args))
+                       seed=args.seed, discrepancy=args.discrepancy, progress=progress(args), backfill=args.backfill)
     print(json.dumps(s, default=float) if args.json else format_summary(s))
     return 1 if s["failed"] else 0   # the batch ran to its end; 1 tells a script that some files failed
 
@@ -42,6 +42,7 @@ def cmd_fleet_dask_config(args) -> int:
 
 
 def register(sub) -> None:
+    from .prognostics import BACKFILL_HELP
     f = sub.add_parser("fleet", help="fleet scale: simulate a fleet of recordings, diagnose many on Dask")
     fs = f.add_subparsers(dest="fleet_command", required=True)
     s = fs.add_parser("simulate", help="a reproducible fleet of degrading actuators' FDI tests, with a manifest",
@@ -61,6 +62,7 @@ def register(sub) -> None:
     d.add_argument("--workers", type=int, help="worker processes of the LocalCluster (default 2)")
     d.add_argument("--discrepancy", action="store_true",
                    help="also run the discrepancy loop on each test and store its verdict")
+    d.add_argument("--backfill", action="store_true", help=BACKFILL_HELP)
     d.set_defaults(func=cmd_fleet_diagnose)
     c = fs.add_parser("dask-config", help="print the Dask settings of fleet workers as a YAML config file "
                       "(for ~/.config/dask/ on the machines of a real cluster)")

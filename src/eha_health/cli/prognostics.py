@@ -17,6 +17,10 @@ from ..physics.faults import FAULT_KEYS
 from .common import (UsageError, fitness_option, history_option, json_flag, load_test, method_option,
                      prognostics_settings_option, progress, quiet_flag, seed_option, test_option)
 
+#: --backfill of the commands that append tests
+BACKFILL_HELP = "accept tests older than the actuator's latest stored one (a recording that failed once and is fixed, an older log found later); without it they are refused as out of order"
+
+
 def _db(args, must_exist: bool, settings) -> Path:
     from ..prognostics.store import default_history_path
     path = Path(args.history).expanduser() if args.history else default_history_path(settings)
@@ -92,11 +96,11 @@ def cmd_history_add(args) -> int:
             raise UsageError(f"{path}{'' if tid is None else f' test {tid}'} is already in the history: the monitor "
                              f"appended it live for actuator {live or args.actuator} at time_h {meta['time_h']:g} "
                              f"(metadata history/test_{tid}), not {args.actuator} at {time_h:g}")
-        st.check_next_time(args.actuator, time_h, sim_s, str(path))   # before the diagnosis, not after it
+        st.check_next_time(args.actuator, time_h, sim_s, str(path), backfill=args.backfill)   # before the diagnosis
         d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=progress(args))
         notes = st.usage_notes([HealthRecord(args.actuator, float(time_h), (0.0,) * 3, (0.0,) * 3, usage=usage)])
         added = st.add_diagnosis(d, args.actuator, time_h, usage=usage, usage_unit=args.usage_unit,
-                                 source_path=path, sim_time_s=sim_s, source_window=window)
+                                 source_path=path, sim_time_s=sim_s, source_window=window, backfill=args.backfill)
     for n in notes if added else []:
         print(f"note: {n}", file=sys.stderr)
     ks = ", ".join(f"{n.upper()}={v:.4f}+-{d.std['k_' + n]:.4f}" for n, v in zip(FAULT_KEYS, d.faults.as_tuple()))
@@ -142,7 +146,7 @@ def cmd_history_import(args) -> int:
     recs = read_history_csv(args.file, settings)     # a bad file creates no store
     with HistoryStore(db, settings) as st:
         notes = st.usage_notes(recs)
-        n = st.import_csv(args.file, recs)
+        n = st.import_csv(args.file, recs, backfill=args.backfill)
         total = st.count_tests()
     for note in notes if n else []:
         print(f"note: {note}", file=sys.stderr)
@@ -279,6 +283,7 @@ def register(sub) -> None:
                                                 "carries it; required otherwise)")
     a.add_argument("--usage", type=float, help="usage at the test (flight hours or cycles)")
     a.add_argument("--usage-unit", default=None, help="unit of --usage, e.g. FH or cycles")
+    a.add_argument("--backfill", action="store_true", help=BACKFILL_HELP)
     a.set_defaults(func=cmd_history_add)
 
     ls = hs.add_parser("list", help="the stored tests and maintenance",
@@ -290,6 +295,7 @@ def register(sub) -> None:
                                       "k_bkl [, std_gm, std_fsj, std_bkl, usage])",
                         parents=[history_option(), prognostics_settings_option()])
     im.add_argument("file", help="HISTORY.csv")
+    im.add_argument("--backfill", action="store_true", help=BACKFILL_HELP)
     im.set_defaults(func=cmd_history_import)
 
     rp = hs.add_parser("repair", help="record a repair or replacement: that fault's trend restarts",

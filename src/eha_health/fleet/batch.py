@@ -177,7 +177,8 @@ def _fmt_rate(n: int, seconds: float) -> str:
     return f"{3600.0 * n / seconds:,.0f}/h" if seconds > 0 and n else "-"
 
 
-def plan(recordings: list[Recording], store: HistoryStore, failures: FailureLog) -> tuple[list, int]:
+def plan(recordings: list[Recording], store: HistoryStore, failures: FailureLog,
+         backfill: bool = False) -> tuple[list, int]:
     """(to do: [(recording, hash)], skipped): hash every file (a bag of several tests: every test
     window), drop those the store has (and repeats, and tests a monitor appended live: the same
     actuator, time and window stamp), fill ids and times from bag metadata; unreadable or
@@ -225,7 +226,7 @@ def plan(recordings: list[Recording], store: HistoryStore, failures: FailureLog)
             skipped += 1
             continue
         try:   # a test the store would refuse (earlier than its actuator's latest) fails before its diagnosis
-            store.check_next_time(rec.actuator_id, rec.time_h, rec.sim_time_s, rec.where(), latest)
+            store.check_next_time(rec.actuator_id, rec.time_h, rec.sim_time_s, rec.where(), latest, backfill)
         except PrognosticsError as e:
             failures.add(rec, f"not stored: {e}", h)
             continue
@@ -249,11 +250,13 @@ def record_of(rec: Recording, h: str, res: dict) -> HealthRecord:
 
 def diagnose_fleet(recordings: list[Recording], history: str | Path, scheduler: str | None = None,
                    workers: int = 2, method: str = DEFAULT_METHOD, seed: int = 0, discrepancy: bool = False,
-                   progress: Callable[[str], None] | None = None, client=None, per_task: int | None = None) -> dict:
+                   progress: Callable[[str], None] | None = None, client=None, per_task: int | None = None,
+                   backfill: bool = False) -> dict:
     """Diagnose every recording not yet in the store at ``history`` and append the results.
 
     ``per_task``: recordings per Dask task (default :data:`RECORDINGS_PER_TASK`, fewer when the
-    batch is small: at least two tasks per worker).
+    batch is small: at least two tasks per worker). ``backfill``: tests older than their
+    actuator's latest stored one are stored too (:meth:`HistoryStore.add_tests`).
 
     Returns the summary: ``recordings, diagnosed, skipped, failed, failures`` (first 20:
     path, reason), ``wall_time_s`` (all of it, cluster start included), ``batch_time_s``
@@ -271,7 +274,7 @@ def diagnose_fleet(recordings: list[Recording], history: str | Path, scheduler: 
     except PrognosticsError as e:
         raise FleetError(str(e)) from None
     with store:
-        todo, skipped = plan(recordings, store, failures)
+        todo, skipped = plan(recordings, store, failures, backfill)
         # a bag of several tests is several recordings: count what the plan saw
         summary = {"recordings": len(todo) + skipped + failures.count, "files": len({r.path for r in recordings}),
                    "diagnosed": 0, "skipped": skipped, "failed": failures.count,
@@ -286,7 +289,7 @@ def diagnose_fleet(recordings: list[Recording], history: str | Path, scheduler: 
                 if client is None:
                     client = stack.enter_context(dask_client(scheduler, workers))
                 summary.update(_run(client, todo, store, failures, method, seed, discrepancy, progress, summary,
-                                    per_task))
+                                    per_task, backfill))
         summary["failed"] = failures.count
         summary["failures"] = failures.items[:20]
         summary["wall_time_s"] = time.perf_counter() - t_start
@@ -296,7 +299,7 @@ def diagnose_fleet(recordings: list[Recording], history: str | Path, scheduler: 
 
 
 def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, seed: int, discrepancy: bool,
-         progress, summary: dict, per_task: int | None = None) -> dict:
+         progress, summary: dict, per_task: int | None = None, backfill: bool = False) -> dict:
     from distributed import as_completed
     # the calibrated monitor goes to every worker once; tasks carry only a reference to it
     # a key of this batch's own (hash=False): the content-hashed key was the same in every batch,
@@ -335,7 +338,7 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
                 continue
             rec = by_hash[h]
             try:
-                added = store.add_tests([record_of(rec, h, res)], [rec.where()])
+                added = store.add_tests([record_of(rec, h, res)], [rec.where()], backfill)
             except (PrognosticsError, ValueError) as e:
                 failures.add(rec, f"not stored: {e}", h)
                 continue

@@ -350,8 +350,10 @@ def _check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = No
                 raise PrognosticsError(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
                                        f"time_h={r.time_h:g} ({w0})")
             if r.time_h < t0:
+                hint = ("; a test older than the latest stored one goes in with --backfill"
+                        if w0 == "the history" else "")
                 raise PrognosticsError(f"{where}: times out of order: actuator {r.actuator_id} test at "
-                                       f"time_h={r.time_h:g} comes after one at {t0:g} ({w0})")
+                                       f"time_h={r.time_h:g} comes after one at {t0:g} ({w0}){hint}")
         last[r.actuator_id] = (r.time_h, where)
         if r.usage is None:
             continue
@@ -533,15 +535,27 @@ class HistoryStore:
         return int(self.conn.execute("SELECT COUNT(*) FROM tests").fetchone()[0])
 
     def check_next_time(self, actuator_id: str, time_h: float, sim_time_s: float | None, where: str,
-                        latest: dict[str, float] | None = None) -> None:
+                        latest: dict[str, float] | None = None, backfill: bool = False) -> None:
         """Raise the error :meth:`add_tests` would give a test of ``actuator_id`` at ``time_h``
         (a bad actuator id or time, out of order, a duplicate), before the work of diagnosing it; a test the store holds by
         another path (:meth:`holds_test`) passes: adding it is a no-op. ``latest``: the store's
-        :meth:`latest_times`, where the caller checks many."""
+        :meth:`latest_times`, where the caller checks many; ``backfill``: a test older than the
+        latest may come (:meth:`add_tests`)."""
         r = HealthRecord(actuator_id, float(time_h), (0.0,) * 3, (0.0,) * 3)
         _check_record(r, where)
         if not self.holds_test(actuator_id, time_h, sim_time_s):
-            _check_order([(where, r)], self.latest_times() if latest is None else latest)
+            if backfill:
+                self._check_free([(where, r)])
+            else:
+                _check_order([(where, r)], self.latest_times() if latest is None else latest)
+
+    def _check_free(self, items: list[tuple[str, HealthRecord]]) -> None:
+        """No stored test at an item's actuator and time (a back-filled test's own check)."""
+        for where, r in items:
+            if self.conn.execute("SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ?",
+                                 (r.actuator_id, r.time_h)).fetchone():
+                raise PrognosticsError(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
+                                       f"time_h={r.time_h:g} (the history)")
 
     def usage_notes(self, records: list[HealthRecord]) -> list[str]:
         """Notes for records whose usage is below the actuator's last stored one (since its last
@@ -564,6 +578,17 @@ class HistoryStore:
                              f"{row[0]:g} at time_h={row[1]:g} in the history; kept, and the usage rate counts "
                              f"from it. A replaced unit: record it (eha-health history repair --actuator "
                              f"{r.actuator_id} --fault all --action replace --time-h T); else correct the usage")
+                continue
+            # a back-filled test: the usage of the stored test after it must not fall below its own
+            row = self.conn.execute(
+                "SELECT usage, time_h FROM tests WHERE actuator_id = ? AND usage IS NOT NULL AND time_h > ? "
+                "AND NOT EXISTS (SELECT 1 FROM maintenance WHERE actuator_id = ? AND action = 'replace' "
+                "AND time_h > ? AND time_h <= tests.time_h) ORDER BY time_h LIMIT 1",
+                (r.actuator_id, r.time_h, r.actuator_id, r.time_h)).fetchone()
+            if row is not None and r.usage > row[0]:
+                notes.append(f"usage falls for actuator {r.actuator_id}: the stored test at time_h={row[1]:g} has "
+                             f"{row[0]:g}, below the {r.usage:g} of the test back-filled at time_h={r.time_h:g}; "
+                             f"kept: correct the usage if it is a typing error")
         return notes
 
     def _writable(self) -> None:
@@ -574,8 +599,12 @@ class HistoryStore:
         """Each actuator's latest stored test time [h]."""
         return {a: t for a, t in self.conn.execute("SELECT actuator_id, MAX(time_h) FROM tests GROUP BY actuator_id")}
 
-    def add_tests(self, records: list[HealthRecord], wheres: list[str] | None = None) -> int:
+    def add_tests(self, records: list[HealthRecord], wheres: list[str] | None = None, backfill: bool = False) -> int:
         """Append validated records in one transaction; returns the rows added.
+
+        Each actuator's tests come in time order, after its latest stored one -- or, with
+        ``backfill``, at any time the actuator has no test at yet (a recording that failed once and
+        is fixed, an older log found later; a repair recorded after it still restarts the trend).
 
         A record whose ``source_hash`` is already stored for the same actuator adds nothing
         (the same recording twice); for another actuator it is an error. So does a record of a test
@@ -605,7 +634,11 @@ class HistoryStore:
                     continue
                 seen.add(r.source_hash)
                 new.append((w, r))
-            _check_order(new, self.latest_times())
+            if backfill:
+                _check_order(new)
+                self._check_free(new)
+            else:
+                _check_order(new, self.latest_times())
             q = f"INSERT INTO tests ({','.join(TEST_COLUMNS)}) VALUES ({','.join('?' * len(TEST_COLUMNS))})"
             self.conn.executemany(q, [r.row() for _, r in new])
         return len(new)
@@ -613,8 +646,8 @@ class HistoryStore:
     def add_diagnosis(self, diagnosis, actuator_id: str, time_h: float, usage: float | None = None,
                       usage_unit: str | None = None, source_path: str | Path | None = None,
                       response=None, sim_time_s: float | None = None, discrepancy: str | None = None,
-                      source_window: int | None = None) -> bool:
-        """Append one :class:`eha_health` Diagnosis; True if a row was added.
+                      source_window: int | None = None, backfill: bool = False) -> bool:
+        """Append one :class:`eha_health` Diagnosis; True if a row was added (``backfill``: :meth:`add_tests`).
 
         The source hash is that of ``source_path`` (CSV or bag; ``source_window``: the test window
         of a bag of several, :func:`recording_hash`) if given, else of the ``response`` channels
@@ -641,13 +674,13 @@ class HistoryStore:
                          method=diagnosis.method, cost=float(diagnosis.cost), fit_rms=dict(diagnosis.rms),
                          discrepancy=discrepancy, warnings=list(diagnosis.warnings),
                          source_path=str(source_path) if source_path is not None else None, source_hash=h)
-        return self.add_tests([rec], [f"diagnosis for actuator {actuator_id} at time_h={time_h:g}"]) == 1
+        return self.add_tests([rec], [f"diagnosis for actuator {actuator_id} at time_h={time_h:g}"], backfill) == 1
 
-    def import_csv(self, path: str | Path, records: list[HealthRecord] | None = None) -> int:
+    def import_csv(self, path: str | Path, records: list[HealthRecord] | None = None, backfill: bool = False) -> int:
         """Append the rows of a HISTORY.csv (each row hashed: importing twice adds nothing);
-        ``records``: its rows already read (:func:`read_history_csv`)."""
+        ``records``: its rows already read (:func:`read_history_csv`); ``backfill``: :meth:`add_tests`."""
         recs = read_history_csv(path, self.settings) if records is None else records
-        return self.add_tests(recs, [f"{Path(path).name} row {i + 1}" for i in range(len(recs))])
+        return self.add_tests(recs, [f"{Path(path).name} row {i + 1}" for i in range(len(recs))], backfill)
 
     def record_repair(self, actuator_id: str, fault: str, time_h: float, action: str = "repair",
                       note: str | None = None) -> None:
