@@ -12,7 +12,7 @@ transaction as soon as it can be, so a client killed at any moment leaves only w
 and the next run diagnoses exactly the recordings not stored yet.
 
 Time order. The store accepts an actuator's tests only in increasing time (it refuses a test
-earlier than the latest stored one), while Dask returns results in any order. Tasks are
+earlier than the latest stored one, unless ``backfill``), while Dask returns results in any order. Tasks are
 submitted earliest-test-first across actuators and a result waits in memory until every
 earlier test of its actuator in this batch is written or has failed (a killed client loses
 only such waiting results, which the next run redoes).
@@ -182,7 +182,8 @@ def plan(recordings: list[Recording], store: HistoryStore, failures: FailureLog,
     """(to do: [(recording, hash)], skipped): hash every file (a bag of several tests: every test
     window), drop those the store has (and repeats, and tests a monitor appended live: the same
     actuator, time and window stamp), fill ids and times from bag metadata; unreadable or
-    unidentified files fail here."""
+    unidentified files fail here, and so do a recording held for another actuator and a test
+    the store would refuse (earlier than its actuator's latest, unless ``backfill``)."""
     known = dict(store.conn.execute("SELECT source_hash, actuator_id FROM tests"))
     latest = store.latest_times()
     todo, seen, skipped = [], {}, 0
