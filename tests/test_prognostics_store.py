@@ -14,6 +14,7 @@ import pytest
 
 from eha_health.prognostics.config import PrognosticsError, load_settings
 from eha_health.prognostics.store import SCHEMA_VERSION, HistoryStore, HealthRecord, as_history, read_history_csv
+from waiting import wait_until
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
 
@@ -390,9 +391,10 @@ def test_writers_that_create_one_history_at_once_all_land(tmp_path):
         ps = [subprocess.Popen([sys.executable, "-c", _AT_GO, str(ready[i]), str(go), "history", "import",
                                 str(c), "--history", str(db)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                text=True) for i, c in enumerate(csvs)]
-        deadline = time.monotonic() + 300
-        while not all(x.exists() for x in ready) and time.monotonic() < deadline:
-            time.sleep(0.01)
+        # every writer imported and ready -- or one exited before (its error is reported below)
+        names = [f"writer {i}" for i in range(writers)]
+        wait_until(lambda: all(x.exists() for x in ready) or any(p.poll() is not None for p in ps), 300,
+                   "every writer ready", dict(zip(names, ps)), may_exit=names)
         go.touch()
         outs = [(p.wait(timeout=300), p.stderr.read()) for p in ps]
         failed += [(r, rc, err.strip().splitlines()[-1:]) for rc, err in outs if rc != 0]
