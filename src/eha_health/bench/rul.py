@@ -742,7 +742,8 @@ def time_prognose(n_actuators: int = 1000, path: str | Path | None = None) -> di
             st.import_csv(p)
             cache = FleetPriorCache()
             t0 = time.perf_counter()
-            prognose(st.history(), ids[0], priors=cache.priors(st.history()))
+            hist = st.history()
+            prognose(hist, ids[0], priors=cache.priors(hist))
             first = time.perf_counter() - t0
             other = st.list_tests(ids[-1])[-1]
             st.add_tests([HealthRecord(ids[-1], other["time_h"] + 40.0,

@@ -43,14 +43,18 @@ class FleetPriorCache:
     def priors(self, history) -> dict:
         """{fault: FleetPrior | None} of ``history`` (a History, a HistoryStore or a path)."""
         from .clock import on_usage_clock
-        from .rul import _predict_fault, fleet_prior, member_lives
         from .store import as_history
+        hist = as_history(history, self.settings)
+        if self.settings.prognosis.clock == "usage":
+            hist, _, _ = on_usage_clock(hist, required=())
+        return self.on_clock(hist)
+
+    def on_clock(self, hist) -> dict:
+        """:meth:`priors` of a History already on the settings' clock (``prognose`` has it so)."""
+        from .rul import _predict_fault, fleet_prior, member_lives
         s = self.settings
         if self.thresholds is None:
             self.thresholds = threshold_values(s)
-        hist = as_history(history, s)
-        if s.prognosis.clock == "usage":
-            hist, _, _ = on_usage_clock(hist, required=())
         prints = {a: _fingerprint(h) for a, h in hist.actuators.items()}
         changed = sorted(a for a, fp in prints.items() if self._prints.get(a) != fp)
         gone = set(self._prints) - set(prints)

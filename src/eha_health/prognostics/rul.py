@@ -675,12 +675,6 @@ def fleet_priors(history, settings: Settings | None = None,
     return FleetPriorCache(settings, thresholds).priors(history)
 
 
-def _priors(hist, s: Settings, thr: dict[str, float]) -> dict[str, FleetPrior | None]:
-    """:func:`fleet_priors` of a history on the clock of ``s``."""
-    ids = sorted(hist.actuators)
-    return {f: _prior_of(ids, _predict_fault(hist, ids, fi, thr[f], s), s) for fi, f in enumerate(FAULTS)}
-
-
 #: F fields of a fault that the overall F does not carry
 _FAULT_ONLY = ("n_points", "onset_h", "k_last", "std_last", "onset_posterior")
 
@@ -731,7 +725,8 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
         if actuator is None:
             priors = {f: _prior_of(ids, plists[f], s) for f in FAULTS}
         elif any(takes_prior(p, s) for pl in plists.values() for p in pl):
-            priors = _priors(hist, s, thr)
+            from .prior_cache import FleetPriorCache
+            priors = FleetPriorCache(s, thr).on_clock(hist)
         else:
             priors = {}
     preds: dict[str, dict[str, FaultPrediction]] = {a: {} for a in ids}
