@@ -6,7 +6,7 @@ actuator's prediction depends on its own data and the common random numbers, nev
 other series of the batch). So when one actuator gains a test, only its life changes: a caller
 that prognoses after every test (the monitor on a history shared by a fleet) refits that one
 actuator instead of the whole fleet -- on 1000 actuators about 25 ms instead of about 20 s --
-and gets the same prior, bit for bit, as :func:`rul.fleet_priors` of the whole history.
+and gets the same prior, bit for bit, as a fresh fit of the whole history (:func:`rul.fleet_priors`).
 
 An actuator counts as changed when its tests (times, K, standard errors, usage) or its
 maintenance differ from the last call, on the clock of the settings (on the usage clock, the
@@ -65,5 +65,5 @@ class FleetPriorCache:
             if changed:
                 lives.update(member_lives(changed, _predict_fault(hist, changed, fi, self.thresholds[f], s), s))
         self._prints, self.refitted = prints, len(changed)
-        # in actuator order, as rul.fleet_priors sums them: the same prior to the last bit
+        # summed in actuator order whatever the order of the updates: the same prior to the last bit
         return {f: fleet_prior(dict(sorted(self._lives[f].items())), s.fleet.min_members) for f in FAULTS}
