@@ -269,7 +269,7 @@ def test_a_monitor_log_of_several_tests_is_one_recording_per_test(client, tmp_pa
             w.add_metadata(f"history/test_{tid}", {"time_h": f"{100 * tid}", "usage": f"{250 * tid}",
                                                    "sim_time_s": f"{8.0 * tid}"})
     # test 1 was appended live by the monitor that wrote the log (its row hashed by the channels)
-    from eha_health.prognostics.store import HealthRecord
+    from eha_health.prognostics.records import HealthRecord
     with HistoryStore(db) as st:
         st.add_tests([HealthRecord("ACT-9", 100.0, (0.3, 0.0, 0.0), (0.001,) * 3, usage=250.0, sim_time_s=8.0,
                                    source_hash="live-monitor-row")])

@@ -9,7 +9,8 @@ import pytest
 
 from eha_health import Faults, load, simulate
 from eha_health.cli import main
-from eha_health.prognostics.store import HealthRecord, HistoryStore
+from eha_health.prognostics.records import HealthRecord
+from eha_health.prognostics.store import HistoryStore
 from eha_health.prognostics.thresholds import threshold_values
 
 

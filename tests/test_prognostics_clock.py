@@ -9,7 +9,7 @@ import pytest
 from eha_health.prognostics.clock import on_usage_clock, usage_variance
 from eha_health.prognostics.config import PrognosticsError, load_settings
 from eha_health.prognostics.rul import prognose
-from eha_health.prognostics.store import HealthRecord, _history_from_records
+from eha_health.prognostics.records import HealthRecord, history_from_records
 
 THR = {"gm": 1.0, "fsj": 1.0, "bkl": 1.0}
 USAGE = load_settings(overrides={"prognosis": {"clock": "usage"}})
@@ -20,7 +20,7 @@ def history(units, repairs=()):
     recs = [HealthRecord(a, float(t), (float(k), 0.01, 0.01), (0.005, 0.005, 0.005),
                          usage=None if not np.isfinite(u) else float(u))
             for a, (ts, us, ks) in units.items() for t, u, k in zip(ts, us, ks)]
-    return _history_from_records(recs, list(repairs), 0.002)
+    return history_from_records(recs, list(repairs), 0.002)
 
 
 def seasonal(seed, n=16, interval=50.0):

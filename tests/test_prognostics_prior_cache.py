@@ -10,7 +10,8 @@ from eha_health.bench.rul import synthetic_history_csv
 from eha_health.prognostics.config import load_settings
 from eha_health.prognostics.prior_cache import FleetPriorCache
 from eha_health.prognostics.rul import fleet_priors, prognose
-from eha_health.prognostics.store import HealthRecord, HistoryStore
+from eha_health.prognostics.records import HealthRecord
+from eha_health.prognostics.store import HistoryStore
 
 N = 24
 

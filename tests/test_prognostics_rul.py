@@ -11,7 +11,8 @@ from eha_health.prognostics import metrics as M
 from eha_health.prognostics.config import PrognosticsError, load_settings
 from eha_health.prognostics.degradation import degradation_segment, rise_onset
 from eha_health.prognostics.rul import plot_prognosis, prognose
-from eha_health.prognostics.store import HistoryStore, HealthRecord
+from eha_health.prognostics.records import HealthRecord
+from eha_health.prognostics.store import HistoryStore
 from eha_health.prognostics.thresholds import METRICS, failure_thresholds
 
 THR = {"gm": 0.8, "fsj": 0.9, "bkl": 0.85}     # explicit thresholds: these tests need no simulation
@@ -594,8 +595,8 @@ def test_a_rise_only_the_last_test_shows_must_clear_the_outlier_level():
 
 
 def _history_of(actuator, t, k, sd):
-    from eha_health.prognostics.store import _history_from_records
-    return _history_from_records([HealthRecord(actuator, float(ti), (float(ki), 0.0, 0.0), (float(si), 0.001, 0.001))
+    from eha_health.prognostics.records import history_from_records
+    return history_from_records([HealthRecord(actuator, float(ti), (float(ki), 0.0, 0.0), (float(si), 0.001, 0.001))
                                   for ti, ki, si in zip(t, k, sd)], [], 0.002)
 
 
@@ -618,14 +619,14 @@ LONG = """
 import resource, sys
 import numpy as np
 resource.setrlimit(resource.RLIMIT_AS, (2 << 30, 2 << 30))
-from eha_health.prognostics.store import HealthRecord, _history_from_records
+from eha_health.prognostics.records import HealthRecord, history_from_records
 from eha_health.prognostics.rul import prognose
 n = 6000
 rng = np.random.default_rng(1)
 t = np.arange(n) * 2.4
 k = np.clip(np.where(t > 0.5 * t[-1], 0.5 * (t - 0.5 * t[-1]) / t[-1], 0) + rng.normal(0, 0.01, (3, n)), 0, 1.5).T
 recs = [HealthRecord("A", float(ti), tuple(ki), (0.01,) * 3) for ti, ki in zip(t, k)]
-out = prognose(_history_from_records(recs, [], 0.002), next_check_h=24.0)
+out = prognose(history_from_records(recs, [], 0.002), next_check_h=24.0)
 gm = out["actuators"]["A"]["faults"]["gm"]
 print(gm["rul_median_h"], gm["threshold"], t[-1])
 """

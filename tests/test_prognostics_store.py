@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 
 from eha_health.prognostics.config import PrognosticsError, load_settings
-from eha_health.prognostics.store import SCHEMA_VERSION, HistoryStore, HealthRecord, as_history, read_history_csv
+from eha_health.prognostics.history_csv import read_history_csv
+from eha_health.prognostics.records import HealthRecord
+from eha_health.prognostics.store import SCHEMA_VERSION, HistoryStore, as_history
 from waiting import wait_until
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
@@ -254,7 +256,8 @@ def test_import_csv_twice_and_bad_csv(tmp_path):
 WRITER = textwrap.dedent("""
     import sys
     sys.path.insert(0, {src!r})
-    from eha_health.prognostics.store import HistoryStore, HealthRecord
+    from eha_health.prognostics.records import HealthRecord
+    from eha_health.prognostics.store import HistoryStore
     batch = int(sys.argv[2])
     with HistoryStore(sys.argv[1]) as st:
         t = 0.0

@@ -728,7 +728,8 @@ def time_prognose(n_actuators: int = 1000, path: str | Path | None = None) -> di
     import tempfile
     from ..prognostics.prior_cache import FleetPriorCache
     from ..prognostics.rul import prognose
-    from ..prognostics.store import HealthRecord, HistoryStore
+    from ..prognostics.records import HealthRecord
+    from ..prognostics.store import HistoryStore
     from ..prognostics.thresholds import _thresholds
     with tempfile.TemporaryDirectory() as tmp:
         p = synthetic_history_csv(path or Path(tmp) / f"history_{n_actuators}.csv", n_actuators)

@@ -1,4 +1,4 @@
-"""Commands on the health history and the remaining useful life: ``history add|list|import|repair``,
+"""Commands on the health history and the remaining useful life: ``history add|list|import|export|repair``,
 ``prognose``, ``thresholds`` (the harness is ``bench rul`` in :mod:`.bench`).
 
 Every history command takes ``--history DB``; without it the file is
@@ -53,7 +53,8 @@ def _finite(v: float | None, name: str, minimum: float = 0.0) -> None:
 
 def cmd_history_add(args) -> int:
     from ..identification.diagnose import diagnose
-    from ..prognostics.store import HealthRecord, HistoryStore, check_actuator_id, recording_hash
+    from ..prognostics.records import HealthRecord, check_actuator_id
+    from ..prognostics.store import HistoryStore, recording_hash
     path = Path(args.run)
     if not path.is_file():
         raise UsageError(f"{path}: no such recording")
@@ -140,22 +141,66 @@ def cmd_history_list(args) -> int:
 
 
 def cmd_history_import(args) -> int:
-    from ..prognostics.store import HistoryStore, read_history_csv
+    from ..prognostics.history_csv import read_history_csv, read_maintenance_csv
+    from ..prognostics.store import HistoryStore
     settings = _settings(args)
     db = _db(args, False, settings)
-    recs = read_history_csv(args.file, settings)     # a bad file creates no store
+    # both files read before the store is opened: a bad file creates no store
+    maint = read_maintenance_csv(args.maintenance) if args.maintenance else None
+    recs = read_history_csv(args.file, maint)
     with HistoryStore(db, settings) as st:
-        notes = st.usage_notes(recs)
-        n = st.import_csv(args.file, recs, backfill=args.backfill)
+        notes = st.usage_notes(recs, maint)
+        n, m = st.import_files(args.file, args.maintenance, recs, maint, backfill=args.backfill)
         total = st.count_tests()
     for note in notes if n else []:
         print(f"note: {note}", file=sys.stderr)
-    print(f"imported {n} new test(s) from {args.file} into {db} ({total} in all)")
+    extra = f" and {m} maintenance action(s) from {args.maintenance}" if args.maintenance else ""
+    print(f"imported {n} new test(s) from {args.file}{extra} into {db} ({total} tests in all)")
+    return 0
+
+
+def _csv_out(path: str, what: str, db: Path) -> Path:
+    p = Path(path).expanduser()
+    if p.suffix.lower() != ".csv":
+        raise UsageError(f"{p}: the {what} is written as CSV: give a name ending in .csv")
+    if p.is_dir():
+        raise UsageError(f"{p}: a directory, not a {what}")
+    if not p.parent.is_dir():
+        raise UsageError(f"{p.parent}: no such directory for the {what}")
+    if p.resolve() == db.resolve():
+        raise UsageError(f"{p}: that is the history itself")
+    return p
+
+
+def cmd_history_export(args) -> int:
+    from ..prognostics.history_csv import write_history_csv, write_maintenance_csv
+    from ..prognostics.store import HistoryStore
+    settings = _settings(args)
+    db = _db(args, True, settings)
+    out = _csv_out(args.file, "HISTORY.csv", db)
+    mout = _csv_out(args.maintenance or str(out.with_name(out.stem + "_maintenance.csv")), "MAINTENANCE.csv", db)
+    if mout.resolve() == out.resolve():
+        raise UsageError(f"{mout}: the tests and the maintenance need two files")
+    with HistoryStore(db, settings, readonly=True) as st:
+        # one snapshot: a repair recorded between the two reads must not come without its test
+        st.conn.execute("BEGIN")
+        try:
+            rows = st.list_tests(args.actuator)
+            maint = st.list_maintenance(args.actuator)
+        finally:
+            st.conn.execute("COMMIT")
+    if not rows:
+        raise UsageError(f"{db}: the history is empty: nothing to export")
+    write_history_csv(out, rows)
+    write_maintenance_csv(mout, maint)
+    print(f"exported {len(rows)} test(s) to {out} and {len(maint)} maintenance action(s) to {mout} from {db} "
+          f"(import both: eha-health history import {out} --maintenance {mout})")
     return 0
 
 
 def cmd_history_repair(args) -> int:
-    from ..prognostics.store import HistoryStore, trend_start_h
+    from ..prognostics.records import trend_start_h
+    from ..prognostics.store import HistoryStore
     _finite(args.time_h, "--time-h")
     settings = _settings(args)
     db = _db(args, True, settings)
@@ -228,20 +273,21 @@ def format_prognosis(obj: dict, next_check_h: float) -> str:
 
 def cmd_prognose(args) -> int:
     from ..prognostics.rul import plot_prognosis, prognose
-    from ..prognostics.store import default_history_path
+    from ..prognostics.store import as_history, default_history_path
     s = _settings(args)
     src = Path(args.history).expanduser() if args.history else default_history_path(s)   # as_history checks it
     _finite(args.next_check_h, "--next-check-h", minimum=1e-12)
+    hist = as_history(src, s, args.maintenance)
     plotted = None
     if args.plot and not Path(args.plot).suffix:
         args.plot += ".png"         # what matplotlib writes; the path said is the path written
     if args.plot:
-        obj = plot_prognosis(src, args.plot, args.actuator, args.next_check_h, settings=s)
+        obj = plot_prognosis(hist, args.plot, args.actuator, args.next_check_h, settings=s)
         plotted = next(iter(obj["actuators"]))
         if args.actuator is None:   # the plot shows one actuator; the answer is about all of them
-            obj = prognose(src, None, args.next_check_h, settings=s)
+            obj = prognose(hist, None, args.next_check_h, settings=s)
     else:
-        obj = prognose(src, args.actuator, args.next_check_h, settings=s)
+        obj = prognose(hist, args.actuator, args.next_check_h, settings=s)
     if args.json:
         print(json.dumps(obj, default=float))
         return 0
@@ -271,7 +317,7 @@ def cmd_thresholds(args) -> int:
 
 
 def register(sub) -> None:
-    h = sub.add_parser("history", help="the health history: add | list | import | repair")
+    h = sub.add_parser("history", help="the health history: add | list | import | export | repair")
     hs = h.add_subparsers(dest="history_command", required=True)
     a = hs.add_parser("add", help="diagnose a recorded test (CSV or MCAP) and append it to the history",
                       parents=[history_option(), prognostics_settings_option(), test_option("MCAP: test window id"), method_option(),
@@ -295,8 +341,18 @@ def register(sub) -> None:
                                       "k_bkl [, std_gm, std_fsj, std_bkl, usage])",
                         parents=[history_option(), prognostics_settings_option()])
     im.add_argument("file", help="HISTORY.csv")
+    im.add_argument("--maintenance", help="MAINTENANCE.csv (actuator_id, time_h, fault [, action, note]) "
+                                          "imported with it in one transaction: repairs and replacements")
     im.add_argument("--backfill", action="store_true", help=BACKFILL_HELP)
     im.set_defaults(func=cmd_history_import)
+
+    ex = hs.add_parser("export", help="write the history as HISTORY.csv and MAINTENANCE.csv "
+                                      "(history import reads them back)",
+                       parents=[history_option(), prognostics_settings_option()])
+    ex.add_argument("file", help="HISTORY.csv to write (replaced if it exists)")
+    ex.add_argument("--maintenance", help="MAINTENANCE.csv to write (default: FILE_maintenance.csv beside it)")
+    ex.add_argument("--actuator", help="one actuator only")
+    ex.set_defaults(func=cmd_history_export)
 
     rp = hs.add_parser("repair", help="record a repair or replacement: that fault's trend restarts",
                        parents=[history_option(), prognostics_settings_option()])
@@ -318,8 +374,9 @@ def register(sub) -> None:
     p.add_argument("--clock", choices=("time", "usage"), help="fit wear against time_h or against the tests' "
                    "usage (wear that follows flight hours or cycles; RUL in hours at each unit's usage rate); "
                    "default prognosis.clock of the settings (time)")
+    p.add_argument("--maintenance", help="MAINTENANCE.csv of a --history HISTORY.csv (repairs and replacements)")
     p.set_defaults(func=cmd_prognose)
-    p.epilog = "--history also takes a HISTORY.csv"
+    p.epilog = "--history also takes a HISTORY.csv (with --maintenance, its MAINTENANCE.csv)"
 
     t = sub.add_parser("thresholds", help="failure thresholds from the physics (requirements of data/prognostics.yaml)",
                        parents=[prognostics_settings_option(), json_flag()])

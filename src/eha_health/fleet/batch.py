@@ -37,7 +37,8 @@ from typing import Callable
 from ..identification.diagnose import DEFAULT_METHOD, METHODS
 from ..physics.params import load
 from ..prognostics.config import PrognosticsError
-from ..prognostics.store import HealthRecord, HistoryStore, recording_hash, sha256_file
+from ..prognostics.records import HealthRecord
+from ..prognostics.store import HistoryStore, recording_hash, sha256_file
 from .recordings import FleetError, Recording, bag_windows, complete_identity
 from .worker import FleetWorkerSetup, diagnose_recordings, worker_info
 

@@ -2,7 +2,9 @@
 
 Nothing here imports ROS. Modules (docs/prognostics.md has the method and the figures):
 
-* :mod:`.store`       -- SQLite health history (schema v2), HISTORY.csv import
+* :mod:`.records`     -- a test and a maintenance action, their checks, the history as arrays
+* :mod:`.store`       -- SQLite health history (schema v2)
+* :mod:`.history_csv` -- HISTORY.csv and MAINTENANCE.csv: import, export, ``prognose`` from files
 * :mod:`.thresholds`  -- failure thresholds from the reference model and data/prognostics.yaml
 * :mod:`.degradation` -- linear / exponential / power / Wiener models on one Kalman filter
 * :mod:`.online`      -- the same filter updated one test at a time
@@ -13,17 +15,19 @@ Nothing here imports ROS. Modules (docs/prognostics.md has the method and the fi
 * :mod:`.metrics`     -- PHM metrics (alpha-lambda, prognostic horizon, RA, CRA, convergence, ...)
 * :mod:`.config`      -- settings and :class:`PrognosticsError` (bad input: CLI exit code 2)
 
-CLI (:mod:`eha_health.cli.prognostics`): ``history add|list|import|repair`` -> :class:`HistoryStore` methods,
+CLI (:mod:`eha_health.cli.prognostics`): ``history add|list|import|export|repair`` -> :class:`HistoryStore` methods,
 ``prognose`` -> :func:`prognose` / :func:`plot_prognosis`, ``thresholds`` ->
 :func:`failure_thresholds`; the run-to-failure validation harness (``bench rul``) is
 :mod:`eha_health.bench.rul`.
 """
 from .config import PrognosticsError, Settings, load_settings
+from .history_csv import read_history_csv, read_maintenance_csv
+from .records import HealthRecord, History, MaintenanceRecord
 from .rul import plot_prognosis, prognose
-from .store import HealthRecord, History, HistoryStore, default_history_path, read_history_csv
+from .store import HistoryStore, default_history_path
 from .thresholds import failure_thresholds, threshold_values
 
 
-__all__ = ["HealthRecord", "History", "HistoryStore", "PrognosticsError", "Settings",
+__all__ = ["HealthRecord", "History", "HistoryStore", "MaintenanceRecord", "PrognosticsError", "Settings",
            "default_history_path", "failure_thresholds", "load_settings", "plot_prognosis", "prognose",
-           "read_history_csv", "threshold_values"]
+           "read_history_csv", "read_maintenance_csv", "threshold_values"]

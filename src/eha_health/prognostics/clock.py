@@ -6,7 +6,7 @@ seasons, tests at the checks between them), a trend in hours bends where the fly
 extrapolation is off. On the usage clock the degradation models of :mod:`degradation` see the
 wear against what drives it; the RUL comes out in usage units, and in hours as the time the
 usage takes to grow by it. The usage is taken to go on as it went: U(t) = u' t + W(v t), u' the
-actuator's usage rate [usage/h] (:meth:`store.ActuatorHistory.usage_per_hour`: a straight line
+actuator's usage rate [usage/h] (:meth:`records.ActuatorHistory.usage_per_hour`: a straight line
 through its tests' usage) and v [usage^2/h] the long-run variance of its growth about that line
 (:func:`usage_variance`: its own, or the fleet's pooled where larger); so the hours to use up a usage RUL R are inverse Gaussian, IG(R / u',
 R^2 / v) (the first passage of a Wiener process with drift), with u' itself drawn about its
@@ -16,7 +16,7 @@ hours) gives R / u'. Times of past tests (onset, tests set aside, an unrecorded 
 back in hours.
 
 Per actuator, the tests that count are those of the current unit (since its last replacement,
-or the last fall of its usage count: :meth:`store.ActuatorHistory.usage_window`); each must
+or the last fall of its usage count: :meth:`records.ActuatorHistory.usage_window`); each must
 carry a usage. Tests at the same usage (no flying between two checks) are one test on this
 clock: their K are merged, weighted by 1/std^2 (std of the mean 1/sqrt(sum 1/std^2)) -- never
 across a repair (one on the ground between two checks): there the later test is put just past
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import PrognosticsError
-from .store import ActuatorHistory, History
+from .records import ActuatorHistory, History
 
 
 @dataclass(frozen=True)

@@ -684,7 +684,7 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
              details: bool = False, priors: dict[str, FleetPrior | None] | None = None):
     """RUL per fault and overall of every actuator (or one) of a history: the ``prognose --json`` object.
 
-    ``history``: a :class:`store.History`, a :class:`store.HistoryStore`, or a path to a SQLite
+    ``history``: a :class:`records.History`, a :class:`store.HistoryStore`, or a path to a SQLite
     history or a HISTORY.csv. Returns ``{"actuators": {ID: {"faults": {"gm": F, "fsj": F, "bkl": F},
     "overall": F}}}``; F has ``model``, ``rul_median_h``, ``rul_p05_h``, ``rul_p95_h``,
     ``p_fail_next``, ``threshold``, ``n_tests`` (null RUL with a ``reason`` where none can be

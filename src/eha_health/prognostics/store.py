@@ -2,8 +2,9 @@
 
 CLI (:mod:`eha_health.cli.prognostics`): ``eha-health history add RUN.csv|BAG.mcap --actuator ID
 [--time-h T] [--usage U]`` -> :meth:`HistoryStore.add_diagnosis`; ``history list
-[--actuator ID] [--json]`` -> :meth:`HistoryStore.list_tests`; ``history import FILE.csv`` ->
-:meth:`HistoryStore.import_csv`; ``history repair --actuator ID --fault gm|fsj|bkl|all
+[--actuator ID] [--json]`` -> :meth:`HistoryStore.list_tests`; ``history import FILE.csv
+[--maintenance M.csv]`` -> :meth:`HistoryStore.import_files` (the files: :mod:`.history_csv`; the
+records and their checks: :mod:`.records`); ``history repair --actuator ID --fault gm|fsj|bkl|all
 --time-h T`` -> :meth:`HistoryStore.record_repair`; ``--history DB`` defaults to
 :func:`default_history_path`. Bad input raises :class:`PrognosticsError` (a ValueError)
 with one line naming the problem (exit code 2); the store is then unchanged.
@@ -33,29 +34,26 @@ killed mid-append leaves the previous state (SQLite's atomic commit), never a pa
 from __future__ import annotations
 
 import contextlib
-import datetime as _dt
 import hashlib
 import json
-import math
 import os
 import sqlite3
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ..physics.faults import FAULT_KEYS, FAULT_UPPER
 from ..signals.channels import MEASURED
-from ..signals.table import csv_rows
 from .config import PrognosticsError, Settings, load_settings
-from .scatter import noise_estimate
+from .history_csv import check_maintenance_times, read_history_csv, read_maintenance_csv, replacements
+from .records import (K_COLUMNS, MAINT_FAULTS, STD_COLUMNS, History, HealthRecord, MaintenanceRecord,
+                      check_maintenance, check_order, check_record, history_from_records, now_utc)
+
 
 SCHEMA_VERSION = 2
 #: s a writer waits for another writer's transaction before it gives up (SQLite busy timeout)
 BUSY_TIMEOUT_S = 60.0
-MAINT_FAULTS = FAULT_KEYS + ("all",)
-ACTIONS = ("repair", "replace")
 
 _TESTS = f"""
 CREATE TABLE IF NOT EXISTS {{name}} (
@@ -99,8 +97,6 @@ CREATE TABLE IF NOT EXISTS maintenance (
 {_INDEX};
 """
 
-K_COLUMNS = tuple(f"k_{f}" for f in FAULT_KEYS)
-STD_COLUMNS = tuple(f"std_{f}" for f in FAULT_KEYS)
 TEST_COLUMNS = ("actuator_id", "time_h", "wall_time_utc", "sim_time_s", "usage", "usage_unit", *K_COLUMNS,
                 *STD_COLUMNS, "method", "cost", "fit_rms", "discrepancy", "warnings",
                 "source_path", "source_hash", "software_version")
@@ -110,15 +106,6 @@ def default_history_path(settings: Settings | None = None) -> Path:
     """``$EHA_HEALTH_HISTORY`` if set, else ``history.default_path`` of data/prognostics.yaml."""
     env = os.environ.get("EHA_HEALTH_HISTORY")
     return Path(env or (settings or load_settings()).history.default_path).expanduser()
-
-
-def _now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-
-
-def _version() -> str:
-    import eha_health
-    return str(getattr(eha_health, "__version__", "unknown"))
 
 
 def sha256_file(path: str | Path) -> str:
@@ -135,235 +122,6 @@ def recording_hash(path: str | Path, window: int | None = None, file_hash: str |
     is N recordings. ``file_hash``: the file's sha256 if already known."""
     h = file_hash or sha256_file(path)
     return h if window is None else hashlib.sha256(f"{h}#test={int(window)}".encode()).hexdigest()
-
-
-def sha256_json(obj) -> str:
-    return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
-
-
-@dataclass
-class HealthRecord:
-    """One diagnosis to append (K and std in the order gm, fsj, bkl; a std None: not stated,
-    estimated when the history is read, :func:`fill_missing_std`)."""
-    actuator_id: str
-    time_h: float
-    k: tuple
-    std: tuple
-    usage: float | None = None
-    usage_unit: str | None = None
-    sim_time_s: float | None = None
-    method: str | None = None
-    cost: float | None = None
-    fit_rms: dict | None = None
-    discrepancy: str | None = None
-    warnings: list | None = None
-    source_path: str | None = None
-    source_hash: str | None = None
-    wall_time_utc: str | None = None
-    software_version: str | None = None
-
-    def content_hash(self) -> str:
-        """Hash of the diagnosis inputs when there is no recording file."""
-        return sha256_json({"actuator_id": self.actuator_id, "time_h": self.time_h,
-                            "k": [float(v) for v in self.k],
-                            "std": [None if v is None else float(v) for v in self.std],
-                            "usage": self.usage, "method": self.method})
-
-    def row(self) -> tuple:
-        return (self.actuator_id, float(self.time_h), self.wall_time_utc or _now(), self.sim_time_s,
-                self.usage, self.usage_unit, *map(float, self.k),
-                *(None if v is None else float(v) for v in self.std), self.method,
-                self.cost, json.dumps(self.fit_rms) if self.fit_rms is not None else None, self.discrepancy,
-                json.dumps(self.warnings) if self.warnings is not None else None, self.source_path,
-                self.source_hash or self.content_hash(), self.software_version or _version())
-
-
-def check_actuator_id(actuator_id, where: str) -> None:
-    """An actuator id must be a non-empty string without leading or trailing spaces ('A1 ' would
-    be an actuator of its own beside 'A1')."""
-    if not isinstance(actuator_id, str) or not actuator_id.strip():
-        raise PrognosticsError(f"{where}: empty actuator id")
-    if actuator_id != actuator_id.strip():
-        raise PrognosticsError(f"{where}: actuator id {actuator_id!r} has leading or trailing spaces")
-
-
-def _check_record(r: HealthRecord, where: str) -> None:
-    check_actuator_id(r.actuator_id, where)
-    if not isinstance(r.time_h, (int, float)) or not math.isfinite(r.time_h) or r.time_h < 0:
-        raise PrognosticsError(f"{where}: time_h must be a finite number of hours >= 0, got {r.time_h!r}")
-    for name, v in zip(FAULT_KEYS, r.k):
-        if not isinstance(v, (int, float)) or not math.isfinite(v) or not 0.0 <= v <= FAULT_UPPER:
-            raise PrognosticsError(f"{where}: k_{name}={v!r} outside [0, {FAULT_UPPER}]")
-    for name, v in zip(FAULT_KEYS, r.std):
-        if v is None:       # not stated: estimated when read
-            continue
-        if not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise PrognosticsError(f"{where}: std_{name} is {v!r} (standard errors must be finite)")
-        if v < 0:
-            raise PrognosticsError(f"{where}: std_{name}={v!r} is negative")
-    if r.usage is not None and (not math.isfinite(r.usage) or r.usage < 0):
-        raise PrognosticsError(f"{where}: usage must be a finite number >= 0, got {r.usage!r}")
-
-
-# ----------------------------------------------------------------------------- in-memory history
-@dataclass
-class ActuatorHistory:
-    """Tests of one actuator in time order, and its maintenance actions."""
-    actuator_id: str
-    time_h: np.ndarray
-    k: np.ndarray          # [n, 3]
-    std: np.ndarray        # [n, 3]
-    usage: np.ndarray      # [n], NaN where not given
-    repairs: list = field(default_factory=list)   # (time_h, fault in gm/fsj/bkl/all, action)
-
-    def since_repair(self, fault: str) -> np.ndarray:
-        """Mask of the tests at or after the fault's last maintenance (its current trend)."""
-        start = trend_start_h(self.repairs, fault)
-        return self.time_h >= start if start is not None else np.ones(len(self.time_h), bool)
-
-    def usage_window(self) -> np.ndarray:
-        """Mask of the tests of the current unit: since the last replacement, and since the last
-        fall of the usage count (a replacement not, or not yet, recorded)."""
-        ok = np.ones(len(self.time_h), bool)
-        replaced = [t for t, _f, act in self.repairs if act == "replace"]
-        if replaced:              # a new unit counts its usage from its own zero
-            ok &= self.time_h >= max(replaced)
-        idx = np.nonzero(ok & np.isfinite(self.usage))[0]
-        fell = idx[1:][np.diff(self.usage[idx]) < 0]
-        if len(fell):
-            ok[:fell[-1]] = False
-        return ok
-
-    def usage_per_hour(self) -> float | None:
-        """Usage rate [usage unit / h] from a straight line through the tests with usage of the
-        current unit (:meth:`usage_window`); None where fewer than 2 tests have one or the usage
-        does not grow (no usage RUL to give)."""
-        ok = self.usage_window() & np.isfinite(self.usage)
-        if ok.sum() < 2 or np.ptp(self.time_h[ok]) <= 0 or np.ptp(self.usage[ok]) <= 0:
-            return None
-        rate = float(np.polyfit(self.time_h[ok], self.usage[ok], 1)[0])
-        return rate if rate > 0 else None
-
-
-def trend_start_h(repairs, fault: str) -> float | None:
-    """Where a fault's trend restarts [h]: its latest maintenance, of it or of ``all``, from
-    ``repairs`` of (time_h, fault, ...); None if it has none."""
-    times = [t for t, f, *_ in repairs if f in (fault, "all")]
-    return max(times) if times else None
-
-
-@dataclass
-class History:
-    actuators: dict = field(default_factory=dict)   # id -> ActuatorHistory
-
-
-def _history_from_records(recs: list[HealthRecord], repairs: list[tuple], floor: float) -> History:
-    """Arrays per actuator; a std not stated is :func:`fill_missing_std`'s (at least ``floor``)."""
-    by: dict[str, list[HealthRecord]] = {}
-    for r in recs:
-        by.setdefault(r.actuator_id, []).append(r)
-    h = History()
-    for a, rs in by.items():
-        rs = sorted(rs, key=lambda r: r.time_h)
-        fill_missing_std(rs, floor)
-        h.actuators[a] = ActuatorHistory(
-            a, np.array([r.time_h for r in rs], float), np.array([r.k for r in rs], float),
-            np.array([r.std for r in rs], float),
-            np.array([np.nan if r.usage is None else r.usage for r in rs], float),
-            [(t, f, act) for (aa, t, f, act) in repairs if aa == a])
-    return h
-
-
-def _float(text: str, where: str, name: str) -> float:
-    try:
-        if "_" in text:     # float() reads "0.0_5" as 0.005: a typing error, not a number
-            raise ValueError(text)
-        v = float(text)
-    except (TypeError, ValueError):
-        raise PrognosticsError(f"{where}: {name} {text!r} is not a number") from None
-    return v
-
-
-def read_history_csv(path: str | Path, settings: Settings | None = None) -> list[HealthRecord]:
-    """Rows of a HISTORY.csv: ``actuator_id, time_h, k_gm, k_fsj, k_bkl`` [+ ``std_gm, std_fsj,
-    std_bkl, usage``]. Validated row by row. A missing std stays None: the history fills it when
-    read (:func:`fill_missing_std`), and the store keeps it NULL."""
-    s = settings or load_settings()
-    path = Path(path)
-    if path.is_dir():
-        raise PrognosticsError(f"{path}: a directory, not a HISTORY.csv")
-    if not path.is_file():
-        raise PrognosticsError(f"{path}: no such file")
-    recs = []
-    for where, row in csv_rows(path, ("actuator_id", "time_h", *K_COLUMNS), PrognosticsError):
-        if not recs:
-            # a column named k_* or std_* that is none of ours is a misspelling: read as absent, a
-            # std_fjs left K_FSJ's errors to the estimate; other extra columns are the user's own
-            odd = [c for c in row if c and c.lower().startswith(("k_", "std_")) and c not in K_COLUMNS + STD_COLUMNS]
-            if odd:
-                raise PrognosticsError(f"{path}: unknown column(s) {', '.join(odd)}: the K and std columns are "
-                                       f"{', '.join(K_COLUMNS + STD_COLUMNS)} (case-sensitive)")
-        k = tuple(_float(row[f"k_{n}"], where, f"k_{n}") for n in FAULT_KEYS)
-        std = tuple(_float(row[f"std_{n}"], where, f"std_{n}") if row.get(f"std_{n}") not in (None, "")
-                    else None for n in FAULT_KEYS)
-        usage = _float(row["usage"], where, "usage") if row.get("usage") not in (None, "") else None
-        r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k, std,
-                         usage=usage, method="import")
-        _check_record(r, where)
-        r.source_path = str(path)
-        recs.append((where, r))
-    if not recs:
-        raise PrognosticsError(f"{path}: the history is empty (no rows)")
-    _check_order([(w, r) for w, r in recs])
-    return [r for _, r in recs]
-
-
-def fill_missing_std(recs: list[HealthRecord], floor: float) -> None:
-    """Standard errors not stated, in place: the scatter of the actuator's whole series about a
-    smooth trend (:func:`noise_estimate`, 1.4826 MAD of second differences / sqrt(6)), at least
-    ``floor`` (``history.default_std``). ``recs``: one actuator's tests in time order. Estimated
-    when read, from every test held -- a test imported alone has no scatter of its own."""
-    for i in range(3):
-        if all(r.std[i] is not None for r in recs):
-            continue
-        est = noise_estimate(np.array([r.k[i] for r in recs], float))
-        fill = max(floor, est) if math.isfinite(est) else floor
-        for r in recs:
-            if r.std[i] is None:
-                r.std = tuple(fill if j == i else v for j, v in enumerate(r.std))
-
-
-def _check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = None) -> None:
-    """Times must increase strictly per actuator within a batch (and after ``latest``); usage,
-    a count since new (flight hours or cycles), must not fall within a batch. (Against the
-    store it may: a replaced unit's first test is appended before its replacement is recorded,
-    :meth:`ActuatorHistory.usage_per_hour`.)"""
-    last: dict[str, tuple[float, str]] = {}
-    used: dict[str, tuple[float, float, str]] = {}
-    for where, r in items:
-        prev = last.get(r.actuator_id)
-        if prev is None and latest and r.actuator_id in latest:
-            prev = (latest[r.actuator_id], "the history")
-        if prev is not None:
-            t0, w0 = prev
-            if r.time_h == t0:
-                raise PrognosticsError(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
-                                       f"time_h={r.time_h:g} ({w0})")
-            if r.time_h < t0:
-                hint = ("; a test older than the latest stored one goes in with --backfill"
-                        if w0 == "the history" else "")
-                raise PrognosticsError(f"{where}: times out of order: actuator {r.actuator_id} test at "
-                                       f"time_h={r.time_h:g} comes after one at {t0:g} ({w0}){hint}")
-        last[r.actuator_id] = (r.time_h, where)
-        if r.usage is None:
-            continue
-        u0 = used.get(r.actuator_id)
-        if u0 is not None and r.usage < u0[0]:
-            raise PrognosticsError(f"{where}: usage falls: actuator {r.actuator_id} has usage {r.usage:g} at "
-                                   f"time_h={r.time_h:g} after {u0[0]:g} at time_h={u0[1]:g} ({u0[2]}); usage "
-                                   f"counts up from new (flight hours or cycles; a replaced unit: append its "
-                                   f"tests after `history repair --action replace`)")
-        used[r.actuator_id] = (r.usage, r.time_h, where)
 
 
 # ----------------------------------------------------------------------------- SQLite store
@@ -480,7 +238,7 @@ class HistoryStore:
             raise
 
     def _stamp_version(self) -> None:
-        self.conn.execute("INSERT INTO schema_version VALUES (?, ?)", (SCHEMA_VERSION, _now()))
+        self.conn.execute("INSERT INTO schema_version VALUES (?, ?)", (SCHEMA_VERSION, now_utc()))
         self.conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
 
     def _check_columns(self) -> None:
@@ -542,12 +300,12 @@ class HistoryStore:
         :meth:`latest_times`, where the caller checks many; ``backfill``: a test older than the
         latest may come (:meth:`add_tests`)."""
         r = HealthRecord(actuator_id, float(time_h), (0.0,) * 3, (0.0,) * 3)
-        _check_record(r, where)
+        check_record(r, where)
         if not self.holds_test(actuator_id, time_h, sim_time_s):
             if backfill:
                 self._check_free([(where, r)])
             else:
-                _check_order([(where, r)], self.latest_times() if latest is None else latest)
+                check_order([(where, r)], self.latest_times() if latest is None else latest)
 
     def _check_free(self, items: list[tuple[str, HealthRecord]]) -> None:
         """No stored test at an item's actuator and time (a back-filled test's own check)."""
@@ -557,13 +315,15 @@ class HistoryStore:
                 raise PrognosticsError(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
                                        f"time_h={r.time_h:g} (the history)")
 
-    def usage_notes(self, records: list[HealthRecord]) -> list[str]:
+    def usage_notes(self, records: list[HealthRecord], maintenance: list[MaintenanceRecord] | None = None) -> list[str]:
         """Notes for records whose usage is below the actuator's last stored one (since its last
         replacement): kept -- a replaced unit's first test may come before its replacement is
         recorded -- but a usage count falls only then, or by a typing error (the usage rate counts
         from the fall, :meth:`ActuatorHistory.usage_per_hour`). One note per actuator, its first
-        such record."""
+        such record. ``maintenance``: actions coming with the records (a MAINTENANCE.csv), whose
+        replacements explain a fall as the stored ones do."""
         notes, seen = [], set()
+        replaced = replacements(maintenance)
         for r in sorted((r for r in records if r.usage is not None), key=lambda r: r.time_h):
             if r.actuator_id in seen:
                 continue
@@ -573,7 +333,8 @@ class HistoryStore:
                 "AND time_h >= COALESCE((SELECT MAX(time_h) FROM maintenance WHERE actuator_id = ? "
                 "AND action = 'replace'), -1) ORDER BY time_h DESC LIMIT 1",
                 (r.actuator_id, r.time_h, r.actuator_id)).fetchone()
-            if row is not None and r.usage < row[0]:
+            if row is not None and r.usage < row[0] and not any(
+                    row[1] < t <= r.time_h for t in replaced.get(r.actuator_id, ())):
                 notes.append(f"usage falls for actuator {r.actuator_id}: {r.usage:g} at time_h={r.time_h:g} after "
                              f"{row[0]:g} at time_h={row[1]:g} in the history; kept, and the usage rate counts "
                              f"from it. A replaced unit: record it (eha-health history repair --actuator "
@@ -585,7 +346,8 @@ class HistoryStore:
                 "AND NOT EXISTS (SELECT 1 FROM maintenance WHERE actuator_id = ? AND action = 'replace' "
                 "AND time_h > ? AND time_h <= tests.time_h) ORDER BY time_h LIMIT 1",
                 (r.actuator_id, r.time_h, r.actuator_id, r.time_h)).fetchone()
-            if row is not None and r.usage > row[0]:
+            if row is not None and r.usage > row[0] and not any(
+                    r.time_h < t <= row[1] for t in replaced.get(r.actuator_id, ())):
                 notes.append(f"usage falls for actuator {r.actuator_id}: the stored test at time_h={row[1]:g} has "
                              f"{row[0]:g}, below the {r.usage:g} of the test back-filled at time_h={r.time_h:g}; "
                              f"kept: correct the usage if it is a typing error")
@@ -611,36 +373,46 @@ class HistoryStore:
         the store holds by another path (:meth:`holds_test`, :meth:`holds_values`).
         """
         self._writable()
+        items = self._prepare(records, wheres)
+        with self._immediate():
+            return self._insert_tests(items, backfill)
+
+    @staticmethod
+    def _prepare(records: list[HealthRecord], wheres: list[str] | None) -> list[tuple[str, HealthRecord]]:
         wheres = wheres or [f"test {i + 1} (actuator {r.actuator_id}, time_h={r.time_h})"
                             for i, r in enumerate(records)]
         for w, r in zip(wheres, records):
-            _check_record(r, w)
+            check_record(r, w)
             r.source_hash = r.source_hash or r.content_hash()
-        with self._immediate():
-            known = {}
-            hashes = [r.source_hash for r in records]
-            for i in range(0, len(hashes), 500):
-                part = hashes[i:i + 500]
-                q = f"SELECT source_hash, actuator_id FROM tests WHERE source_hash IN ({','.join('?' * len(part))})"
-                known.update(dict(self.conn.execute(q, part).fetchall()))
-            new, seen = [], set()
-            for w, r in zip(wheres, records):
-                owner = known.get(r.source_hash)
-                if owner is not None and owner != r.actuator_id:
-                    raise PrognosticsError(f"{w}: this recording is already in the history for actuator {owner}")
-                if owner is not None or r.source_hash in seen:
-                    continue
-                if self.holds_test(r.actuator_id, r.time_h, r.sim_time_s) or self.holds_values(r):
-                    continue
-                seen.add(r.source_hash)
-                new.append((w, r))
-            if backfill:
-                _check_order(new)
-                self._check_free(new)
-            else:
-                _check_order(new, self.latest_times())
-            q = f"INSERT INTO tests ({','.join(TEST_COLUMNS)}) VALUES ({','.join('?' * len(TEST_COLUMNS))})"
-            self.conn.executemany(q, [r.row() for _, r in new])
+        return list(zip(wheres, records))
+
+    def _insert_tests(self, items: list[tuple[str, HealthRecord]], backfill: bool,
+                      replaced: dict[str, list[float]] | None = None) -> int:
+        """:meth:`add_tests` inside a write transaction; ``replaced``: :func:`records.check_order`."""
+        known = {}
+        hashes = [r.source_hash for _, r in items]
+        for i in range(0, len(hashes), 500):
+            part = hashes[i:i + 500]
+            q = f"SELECT source_hash, actuator_id FROM tests WHERE source_hash IN ({','.join('?' * len(part))})"
+            known.update(dict(self.conn.execute(q, part).fetchall()))
+        new, seen = [], set()
+        for w, r in items:
+            owner = known.get(r.source_hash)
+            if owner is not None and owner != r.actuator_id:
+                raise PrognosticsError(f"{w}: this recording is already in the history for actuator {owner}")
+            if owner is not None or r.source_hash in seen:
+                continue
+            if self.holds_test(r.actuator_id, r.time_h, r.sim_time_s) or self.holds_values(r):
+                continue
+            seen.add(r.source_hash)
+            new.append((w, r))
+        if backfill:
+            check_order(new, replaced=replaced)
+            self._check_free(new)
+        else:
+            check_order(new, self.latest_times(), replaced)
+        q = f"INSERT INTO tests ({','.join(TEST_COLUMNS)}) VALUES ({','.join('?' * len(TEST_COLUMNS))})"
+        self.conn.executemany(q, [r.row() for _, r in new])
         return len(new)
 
     def add_diagnosis(self, diagnosis, actuator_id: str, time_h: float, usage: float | None = None,
@@ -679,33 +451,63 @@ class HistoryStore:
     def import_csv(self, path: str | Path, records: list[HealthRecord] | None = None, backfill: bool = False) -> int:
         """Append the rows of a HISTORY.csv (each row hashed: importing twice adds nothing);
         ``records``: its rows already read (:func:`read_history_csv`); ``backfill``: :meth:`add_tests`."""
-        recs = read_history_csv(path, self.settings) if records is None else records
-        return self.add_tests(recs, [f"{Path(path).name} row {i + 1}" for i in range(len(recs))], backfill)
+        return self.import_files(path, records=records, backfill=backfill)[0]
+
+    def import_files(self, path: str | Path, maintenance_path: str | Path | None = None,
+                     records: list[HealthRecord] | None = None,
+                     maintenance: list[MaintenanceRecord] | None = None, backfill: bool = False) -> tuple[int, int]:
+        """Append a HISTORY.csv and its MAINTENANCE.csv (:mod:`.history_csv`) in one transaction:
+        both or nothing. Returns (tests added, actions added); what the store holds already adds
+        nothing, so an export imports twice without a change. ``records`` / ``maintenance``: the
+        files already read."""
+        self._writable()
+        if maintenance is None and maintenance_path is not None:
+            maintenance = read_maintenance_csv(maintenance_path)
+        recs = read_history_csv(path, maintenance) if records is None else records
+        items = self._prepare(recs, [f"{Path(path).name} row {i + 1}" for i in range(len(recs))])
+        mname = Path(maintenance_path).name if maintenance_path is not None else "maintenance"
+        with self._immediate():
+            n = self._insert_tests(items, backfill, replacements(maintenance))
+            m = self._insert_maintenance([(f"{mname} row {i + 1}", r) for i, r in enumerate(maintenance or [])],
+                                         same_ok=True)
+        return n, m
 
     def record_repair(self, actuator_id: str, fault: str, time_h: float, action: str = "repair",
                       note: str | None = None) -> None:
         """Record a repair or replacement of one fault's part (or ``all``): its trend restarts."""
         self._writable()
-        fault = str(fault).lower().removeprefix("k_")
-        if fault not in MAINT_FAULTS:
-            raise PrognosticsError(f"unknown fault {fault!r}: choose gm, fsj, bkl or all")
-        if action not in ACTIONS:
-            raise PrognosticsError(f"unknown maintenance action {action!r}: choose repair or replace")
-        if not isinstance(time_h, (int, float)) or not math.isfinite(time_h) or time_h < 0:
-            raise PrognosticsError(f"repair time_h must be a finite number of hours >= 0, got {time_h!r}")
+        with self._immediate():
+            self._insert_maintenance([("", MaintenanceRecord(actuator_id, time_h, str(fault).lower().removeprefix("k_"),
+                                                             action, note))])
+
+    def _insert_maintenance(self, items: list[tuple[str, MaintenanceRecord]], same_ok: bool = False) -> int:
+        """Inside a write transaction: maintenance actions of actuators with tests, none after the
+        actuator's latest test (a repair "in the future"). An action on the same actuator, fault
+        and time as a stored one is a duplicate -- skipped with ``same_ok`` where the action is the
+        same too (an import read twice). Returns the rows added."""
         latest = self.latest_times()
-        if actuator_id not in latest:
-            raise PrognosticsError(f"unknown actuator {actuator_id!r}: it has no tests in {self.path}")
-        if time_h > latest[actuator_id]:
-            raise PrognosticsError(f"repair at time_h={time_h:g} is in the future: the latest test of "
-                                   f"{actuator_id} is at {latest[actuator_id]:g} h (append the post-repair test first)")
-        try:
-            with self._immediate():
-                self.conn.execute("INSERT INTO maintenance (actuator_id, time_h, fault, action, wall_time_utc, note) "
-                                  "VALUES (?, ?, ?, ?, ?, ?)", (actuator_id, float(time_h), fault, action, _now(), note))
-        except sqlite3.IntegrityError:
-            raise PrognosticsError(f"duplicate maintenance: {actuator_id} {fault} already recorded at "
-                                   f"time_h={time_h:g}") from None
+        added = 0
+        for where, m in items:
+            at = f"{where}: " if where else ""
+            check_maintenance(m, where or f"{m.action} of {m.fault} on {m.actuator_id}")
+            if m.actuator_id not in latest:
+                raise PrognosticsError(f"{at}unknown actuator {m.actuator_id!r}: it has no tests in {self.path}")
+            if m.time_h > latest[m.actuator_id]:
+                raise PrognosticsError(f"{at}repair at time_h={m.time_h:g} is in the future: the latest test of "
+                                       f"{m.actuator_id} is at {latest[m.actuator_id]:g} h (append the post-repair "
+                                       f"test first)")
+            row = self.conn.execute("SELECT action FROM maintenance WHERE actuator_id = ? AND time_h = ? AND fault = ?",
+                                    (m.actuator_id, float(m.time_h), m.fault)).fetchone()
+            if row is not None:
+                if same_ok and row[0] == m.action:
+                    continue
+                raise PrognosticsError(f"{at}duplicate maintenance: {m.actuator_id} {m.fault} already recorded at "
+                                       f"time_h={m.time_h:g} ({row[0]})")
+            self.conn.execute("INSERT INTO maintenance (actuator_id, time_h, fault, action, wall_time_utc, note) "
+                              "VALUES (?, ?, ?, ?, ?, ?)", (m.actuator_id, float(m.time_h), m.fault, m.action,
+                                                            m.wall_time_utc or now_utc(), m.note))
+            added += 1
+        return added
 
     # ------------------------------------------------------------------ reads
     def actuator_ids(self) -> list[str]:
@@ -751,7 +553,7 @@ class HistoryStore:
             reps = list(self.conn.execute("SELECT actuator_id, time_h, fault, action FROM maintenance"))
         finally:
             self.conn.execute("COMMIT")
-        return _history_from_records(recs, reps, self.settings.history.default_std)
+        return history_from_records(recs, reps, self.settings.history.default_std)
 
 
 def _busy(e: sqlite3.OperationalError) -> bool:
@@ -759,8 +561,10 @@ def _busy(e: sqlite3.OperationalError) -> bool:
     return (getattr(e, "sqlite_errorcode", 0) & 0xFF) in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED)
 
 
-def as_history(obj, settings: Settings | None = None) -> History:
-    """A :class:`History` from a History, a HistoryStore, or a path (``.csv``: HISTORY.csv, else SQLite)."""
+def as_history(obj, settings: Settings | None = None, maintenance: str | Path | None = None) -> History:
+    """A :class:`History` from a History, a HistoryStore, or a path (``.csv``: HISTORY.csv, else
+    SQLite). ``maintenance``: the MAINTENANCE.csv of a HISTORY.csv (:mod:`.history_csv`); a
+    SQLite history holds its own."""
     if isinstance(obj, History):
         return obj
     if isinstance(obj, HistoryStore):
@@ -772,7 +576,14 @@ def as_history(obj, settings: Settings | None = None) -> History:
         raise PrognosticsError(f"{path}: no such history file")
     if path.suffix.lower() == ".csv":
         s = settings or load_settings()
-        return _history_from_records(read_history_csv(path, s), [], s.history.default_std)
+        maint = read_maintenance_csv(maintenance) if maintenance is not None else []
+        recs = read_history_csv(path, maint)
+        check_maintenance_times(recs, maint, path, maintenance)
+        return history_from_records(recs, [(m.actuator_id, m.time_h, m.fault, m.action) for m in maint],
+                                    s.history.default_std)
+    if maintenance is not None:
+        raise PrognosticsError(f"{maintenance}: a MAINTENANCE.csv goes with a HISTORY.csv; the SQLite history "
+                               f"{path} holds its own maintenance (eha-health history import --maintenance adds one)")
     with HistoryStore(path, settings, readonly=True) as st:
         return st.history()
 

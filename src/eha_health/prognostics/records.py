@@ -1,0 +1,250 @@
+"""Health records: the tests and maintenance actions of a history, their checks, and the
+in-memory history the prognostics read (one actuator's tests as arrays, in time order).
+
+Shared by the SQLite store (:mod:`.store`) and the CSV files (:mod:`.history_csv`): one source
+of truth for what a valid record is. A test's K are the fault coefficients (0 healthy, 1 the
+default limit, at most ``physics.faults.FAULT_UPPER``), its std their standard errors, its time
+operating hours [h], its usage flight hours or cycles counted from new.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..physics.faults import FAULT_KEYS, FAULT_UPPER
+from .config import PrognosticsError
+from .scatter import noise_estimate
+
+MAINT_FAULTS = FAULT_KEYS + ("all",)
+ACTIONS = ("repair", "replace")
+K_COLUMNS = tuple(f"k_{f}" for f in FAULT_KEYS)
+STD_COLUMNS = tuple(f"std_{f}" for f in FAULT_KEYS)
+
+
+def now_utc() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def package_version() -> str:
+    import eha_health
+    return str(getattr(eha_health, "__version__", "unknown"))
+
+
+def sha256_json(obj) -> str:
+    return hashlib.sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+@dataclass
+class HealthRecord:
+    """One diagnosis to append (K and std in the order gm, fsj, bkl; a std None: not stated,
+    estimated when the history is read, :func:`fill_missing_std`)."""
+    actuator_id: str
+    time_h: float
+    k: tuple
+    std: tuple
+    usage: float | None = None
+    usage_unit: str | None = None
+    sim_time_s: float | None = None
+    method: str | None = None
+    cost: float | None = None
+    fit_rms: dict | None = None
+    discrepancy: str | None = None
+    warnings: list | None = None
+    source_path: str | None = None
+    source_hash: str | None = None
+    wall_time_utc: str | None = None
+    software_version: str | None = None
+
+    def content_hash(self) -> str:
+        """Hash of the diagnosis inputs when there is no recording file."""
+        return sha256_json({"actuator_id": self.actuator_id, "time_h": self.time_h,
+                            "k": [float(v) for v in self.k],
+                            "std": [None if v is None else float(v) for v in self.std],
+                            "usage": self.usage, "method": self.method})
+
+    def row(self) -> tuple:
+        return (self.actuator_id, float(self.time_h), self.wall_time_utc or now_utc(), self.sim_time_s,
+                self.usage, self.usage_unit, *map(float, self.k),
+                *(None if v is None else float(v) for v in self.std), self.method,
+                self.cost, json.dumps(self.fit_rms) if self.fit_rms is not None else None, self.discrepancy,
+                json.dumps(self.warnings) if self.warnings is not None else None, self.source_path,
+                self.source_hash or self.content_hash(), self.software_version or package_version())
+
+
+def check_actuator_id(actuator_id, where: str) -> None:
+    """An actuator id must be a non-empty string without leading or trailing spaces ('A1 ' would
+    be an actuator of its own beside 'A1')."""
+    if not isinstance(actuator_id, str) or not actuator_id.strip():
+        raise PrognosticsError(f"{where}: empty actuator id")
+    if actuator_id != actuator_id.strip():
+        raise PrognosticsError(f"{where}: actuator id {actuator_id!r} has leading or trailing spaces")
+
+
+def check_record(r: HealthRecord, where: str) -> None:
+    check_actuator_id(r.actuator_id, where)
+    if not isinstance(r.time_h, (int, float)) or not math.isfinite(r.time_h) or r.time_h < 0:
+        raise PrognosticsError(f"{where}: time_h must be a finite number of hours >= 0, got {r.time_h!r}")
+    for name, v in zip(FAULT_KEYS, r.k):
+        if not isinstance(v, (int, float)) or not math.isfinite(v) or not 0.0 <= v <= FAULT_UPPER:
+            raise PrognosticsError(f"{where}: k_{name}={v!r} outside [0, {FAULT_UPPER}]")
+    for name, v in zip(FAULT_KEYS, r.std):
+        if v is None:       # not stated: estimated when read
+            continue
+        if not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise PrognosticsError(f"{where}: std_{name} is {v!r} (standard errors must be finite)")
+        if v < 0:
+            raise PrognosticsError(f"{where}: std_{name}={v!r} is negative")
+    if r.usage is not None and (not math.isfinite(r.usage) or r.usage < 0):
+        raise PrognosticsError(f"{where}: usage must be a finite number >= 0, got {r.usage!r}")
+
+
+# ----------------------------------------------------------------------------- in-memory history
+@dataclass
+class ActuatorHistory:
+    """Tests of one actuator in time order, and its maintenance actions."""
+    actuator_id: str
+    time_h: np.ndarray
+    k: np.ndarray          # [n, 3]
+    std: np.ndarray        # [n, 3]
+    usage: np.ndarray      # [n], NaN where not given
+    repairs: list = field(default_factory=list)   # (time_h, fault in gm/fsj/bkl/all, action)
+
+    def since_repair(self, fault: str) -> np.ndarray:
+        """Mask of the tests at or after the fault's last maintenance (its current trend)."""
+        start = trend_start_h(self.repairs, fault)
+        return self.time_h >= start if start is not None else np.ones(len(self.time_h), bool)
+
+    def usage_window(self) -> np.ndarray:
+        """Mask of the tests of the current unit: since the last replacement, and since the last
+        fall of the usage count (a replacement not, or not yet, recorded)."""
+        ok = np.ones(len(self.time_h), bool)
+        replaced = [t for t, _f, act in self.repairs if act == "replace"]
+        if replaced:              # a new unit counts its usage from its own zero
+            ok &= self.time_h >= max(replaced)
+        idx = np.nonzero(ok & np.isfinite(self.usage))[0]
+        fell = idx[1:][np.diff(self.usage[idx]) < 0]
+        if len(fell):
+            ok[:fell[-1]] = False
+        return ok
+
+    def usage_per_hour(self) -> float | None:
+        """Usage rate [usage unit / h] from a straight line through the tests with usage of the
+        current unit (:meth:`usage_window`); None where fewer than 2 tests have one or the usage
+        does not grow (no usage RUL to give)."""
+        ok = self.usage_window() & np.isfinite(self.usage)
+        if ok.sum() < 2 or np.ptp(self.time_h[ok]) <= 0 or np.ptp(self.usage[ok]) <= 0:
+            return None
+        rate = float(np.polyfit(self.time_h[ok], self.usage[ok], 1)[0])
+        return rate if rate > 0 else None
+
+
+def trend_start_h(repairs, fault: str) -> float | None:
+    """Where a fault's trend restarts [h]: its latest maintenance, of it or of ``all``, from
+    ``repairs`` of (time_h, fault, ...); None if it has none."""
+    times = [t for t, f, *_ in repairs if f in (fault, "all")]
+    return max(times) if times else None
+
+
+@dataclass
+class History:
+    actuators: dict = field(default_factory=dict)   # id -> ActuatorHistory
+
+
+def history_from_records(recs: list[HealthRecord], repairs: list[tuple], floor: float) -> History:
+    """Arrays per actuator; a std not stated is :func:`fill_missing_std`'s (at least ``floor``)."""
+    by: dict[str, list[HealthRecord]] = {}
+    for r in recs:
+        by.setdefault(r.actuator_id, []).append(r)
+    h = History()
+    for a, rs in by.items():
+        rs = sorted(rs, key=lambda r: r.time_h)
+        fill_missing_std(rs, floor)
+        h.actuators[a] = ActuatorHistory(
+            a, np.array([r.time_h for r in rs], float), np.array([r.k for r in rs], float),
+            np.array([r.std for r in rs], float),
+            np.array([np.nan if r.usage is None else r.usage for r in rs], float),
+            [(t, f, act) for (aa, t, f, act) in repairs if aa == a])
+    return h
+
+
+def fill_missing_std(recs: list[HealthRecord], floor: float) -> None:
+    """Standard errors not stated, in place: the scatter of the actuator's whole series about a
+    smooth trend (:func:`noise_estimate`, 1.4826 MAD of second differences / sqrt(6)), at least
+    ``floor`` (``history.default_std``). ``recs``: one actuator's tests in time order. Estimated
+    when read, from every test held -- a test imported alone has no scatter of its own."""
+    for i in range(3):
+        if all(r.std[i] is not None for r in recs):
+            continue
+        est = noise_estimate(np.array([r.k[i] for r in recs], float))
+        fill = max(floor, est) if math.isfinite(est) else floor
+        for r in recs:
+            if r.std[i] is None:
+                r.std = tuple(fill if j == i else v for j, v in enumerate(r.std))
+
+
+def check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = None,
+                replaced: dict[str, list[float]] | None = None) -> None:
+    """Times must increase strictly per actuator within a batch (and after ``latest``); usage,
+    a count since new (flight hours or cycles), must not fall within a batch unless a
+    replacement in ``replaced`` (actuator -> times [h]; a MAINTENANCE.csv's) lies after the
+    higher count and at or before the lower: the new unit counts from its own zero. (Against the
+    store it may fall: a replaced unit's first test is appended before its replacement is
+    recorded, :meth:`ActuatorHistory.usage_per_hour`.)"""
+    last: dict[str, tuple[float, str]] = {}
+    used: dict[str, tuple[float, float, str]] = {}
+    replaced = replaced or {}
+    for where, r in items:
+        prev = last.get(r.actuator_id)
+        if prev is None and latest and r.actuator_id in latest:
+            prev = (latest[r.actuator_id], "the history")
+        if prev is not None:
+            t0, w0 = prev
+            if r.time_h == t0:
+                raise PrognosticsError(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
+                                       f"time_h={r.time_h:g} ({w0})")
+            if r.time_h < t0:
+                hint = ("; a test older than the latest stored one goes in with --backfill"
+                        if w0 == "the history" else "")
+                raise PrognosticsError(f"{where}: times out of order: actuator {r.actuator_id} test at "
+                                       f"time_h={r.time_h:g} comes after one at {t0:g} ({w0}){hint}")
+        last[r.actuator_id] = (r.time_h, where)
+        if r.usage is None:
+            continue
+        u0 = used.get(r.actuator_id)
+        if u0 is not None and r.usage < u0[0] and not any(
+                u0[1] < t <= r.time_h for t in replaced.get(r.actuator_id, ())):
+            raise PrognosticsError(f"{where}: usage falls: actuator {r.actuator_id} has usage {r.usage:g} at "
+                                   f"time_h={r.time_h:g} after {u0[0]:g} at time_h={u0[1]:g} ({u0[2]}); usage "
+                                   f"counts up from new (flight hours or cycles; a replaced unit: append its "
+                                   f"tests after `history repair --action replace`, or give the replacement "
+                                   f"in a MAINTENANCE.csv)")
+        used[r.actuator_id] = (r.usage, r.time_h, where)
+
+
+@dataclass
+class MaintenanceRecord:
+    """One maintenance action: ``fault`` gm, fsj, bkl or all; ``action`` repair or replace (a
+    new part or unit: a usage count restarts from zero); ``time_h`` operating hours [h]. The
+    fault's trend restarts there (:func:`trend_start_h`)."""
+    actuator_id: str
+    time_h: float
+    fault: str
+    action: str = "repair"
+    note: str | None = None
+    wall_time_utc: str | None = None
+
+
+def check_maintenance(m: MaintenanceRecord, where: str) -> None:
+    """A valid action: a known fault and action, a finite time >= 0 [h], a good actuator id."""
+    check_actuator_id(m.actuator_id, where)
+    if m.fault not in MAINT_FAULTS:
+        raise PrognosticsError(f"{where}: unknown fault {m.fault!r}: choose gm, fsj, bkl or all")
+    if m.action not in ACTIONS:
+        raise PrognosticsError(f"{where}: unknown maintenance action {m.action!r}: choose repair or replace")
+    if not isinstance(m.time_h, (int, float)) or not math.isfinite(m.time_h) or m.time_h < 0:
+        raise PrognosticsError(f"{where}: repair time_h must be a finite number of hours >= 0, got {m.time_h!r}")
