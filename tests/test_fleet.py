@@ -20,10 +20,10 @@ from eha_health.bench.fleet import simulate_fleet  # noqa: E402
 from eha_health.cli import main as cli_main  # noqa: E402
 from eha_health.fleet import (FleetError, diagnose_fleet, failures_path, find_recordings,  # noqa: E402
                               read_manifest)
-from eha_health.fleet.batch import WORKER_ENVIRON, dask_client  # noqa: E402
+from eha_health.fleet.batch import WORKER_ENVIRON, dask_client, format_summary  # noqa: E402
 from waiting import wait_until  # noqa: E402
 from eha_health.fleet.recordings import Recording, complete_identity  # noqa: E402
-from eha_health.prognostics.store import HistoryStore, sha256_file  # noqa: E402
+from eha_health.prognostics.store import HistoryStore, backfill_note, sha256_file  # noqa: E402
 
 METHOD = "deterministic"   # the fastest real method keeps these tests short; the bench runs the default
 ROOT = Path(__file__).resolve().parents[1]
@@ -347,6 +347,9 @@ def test_every_recording_of_a_batch_is_counted_and_none_is_filed_under_another_a
     s = diagnose_fleet(find_recordings([late]), db, method=METHOD, client=client, backfill=True)
     assert (s["diagnosed"], s["skipped"], s["failed"]) == (1, 0, 0), s
     assert [r["time_h"] for r in _rows(db)] == [5.0, 10.0]
+    # the RUL given at 10 h did not see the test at 5 h: the summary says so
+    assert s["backfilled"] == [backfill_note("ACT-7", [5.0], [10.0])] and "back-filled" in format_summary(s)
+    assert "the RULs given at those tests" in s["backfilled"][0] and "5 h go in before 1 later" in s["backfilled"][0]
     (tmp_path / "a" / "manifest.csv").write_text("actuator_id,time_h,path\nX,50,log.mcap\nY,60,log.mcap\n")
     with pytest.raises(FleetError, match="line 3.*log.mcap is listed already"):
         read_manifest(tmp_path / "a" / "manifest.csv")

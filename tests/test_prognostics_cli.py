@@ -200,6 +200,16 @@ def test_history_add_csv_and_mcap(tmp_path, capsys):
                                   "--usage", "30", *common])
     assert code == 0 and out.startswith("added: X at 200 h")
     assert "note: usage falls for actuator X: 30 at time_h=200 after 400 at time_h=160.5" in err
+    # the run refused at 50 h goes in with --backfill; the RULs given at the three later tests did not see it
+    code, out, err = run(capsys, ["history", "add", str(tmp_path / "r3.csv"), "--actuator", "X", "--time-h", "50",
+                                  "--backfill", *common])
+    assert code == 0 and "already in" in out and "back-filled" not in err     # r3 is held (at 200 h): nothing added
+    r4 = simulate(kind="reference", faults=Faults(k_gm=0.25), params=p, seed=4)
+    r4.to_csv(tmp_path / "r4.csv")
+    code, out, err = run(capsys, ["history", "add", str(tmp_path / "r4.csv"), "--actuator", "X", "--time-h", "50",
+                                  "--backfill", *common])
+    assert code == 0 and out.startswith("added: X at 50 h")
+    assert "back-filled: actuator X: 1 test(s) at 50 h go in before 3 later stored test(s) (100-200 h)" in err
 
 
 

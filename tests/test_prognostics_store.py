@@ -507,3 +507,8 @@ def test_a_test_older_than_the_latest_goes_in_only_with_backfill(tmp_path, capsy
     assert "--backfill" in capsys.readouterr().err
     assert main(["history", "import", str(old), "--history", str(db), "--backfill"]) == 0
     assert as_history(db).actuators["A1"].time_h.tolist() == [0.0, 5.0, 10.0, 15.0, 20.0, 30.0, 40.0]
+    # the RULs given at the later tests did not see them: said once per actuator, the first's later tests
+    err = capsys.readouterr().err
+    assert "back-filled: actuator A1: 2 test(s) at 5, 15 h go in before 4 later stored test(s) (10-40 h)" in err
+    assert main(["history", "import", str(old), "--history", str(db), "--backfill"]) == 0   # held: nothing to say
+    assert "back-filled" not in capsys.readouterr().err

@@ -99,7 +99,8 @@ def cmd_history_add(args) -> int:
                              f"(metadata history/test_{tid}), not {args.actuator} at {time_h:g}")
         st.check_next_time(args.actuator, time_h, sim_s, str(path), backfill=args.backfill)   # before the diagnosis
         d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=progress(args))
-        notes = st.usage_notes([HealthRecord(args.actuator, float(time_h), (0.0,) * 3, (0.0,) * 3, usage=usage)])
+        rec = HealthRecord(args.actuator, float(time_h), (0.0,) * 3, (0.0,) * 3, usage=usage)
+        notes = st.usage_notes([rec]) + (st.backfill_notes([rec]) if args.backfill else [])
         added = st.add_diagnosis(d, args.actuator, time_h, usage=usage, usage_unit=args.usage_unit,
                                  source_path=path, sim_time_s=sim_s, source_window=window, backfill=args.backfill)
     for n in notes if added else []:
@@ -149,7 +150,7 @@ def cmd_history_import(args) -> int:
     maint = read_maintenance_csv(args.maintenance) if args.maintenance else None
     recs = read_history_csv(args.file, maint)
     with HistoryStore(db, settings) as st:
-        notes = st.usage_notes(recs, maint)
+        notes = st.usage_notes(recs, maint) + (st.backfill_notes(recs) if args.backfill else [])
         n, m = st.import_files(args.file, args.maintenance, recs, maint, backfill=args.backfill)
         total = st.count_tests()
     for note in notes if n else []:

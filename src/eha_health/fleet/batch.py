@@ -38,7 +38,7 @@ from ..identification.diagnose import DEFAULT_METHOD, METHODS
 from ..physics.params import load
 from ..prognostics.config import PrognosticsError
 from ..prognostics.records import HealthRecord
-from ..prognostics.store import HistoryStore, recording_hash, sha256_file
+from ..prognostics.store import HistoryStore, backfill_note, recording_hash, sha256_file
 from .recordings import FleetError, Recording, bag_windows, complete_identity
 from .worker import FleetWorkerSetup, diagnose_recordings, worker_info
 
@@ -279,7 +279,7 @@ def diagnose_fleet(recordings: list[Recording], history: str | Path, scheduler: 
         todo, skipped = plan(recordings, store, failures, backfill)
         # a bag of several tests is several recordings: count what the plan saw
         summary = {"recordings": len(todo) + skipped + failures.count, "files": len({r.path for r in recordings}),
-                   "diagnosed": 0, "skipped": skipped, "failed": failures.count,
+                   "diagnosed": 0, "skipped": skipped, "failed": failures.count, "backfilled": [],
                    "method": method, "history": str(history), "failures_file": str(failures.path),
                    "scheduler": scheduler or "LocalCluster", "workers": None, "worker_setup": [],
                    "batch_time_s": 0.0}
@@ -326,6 +326,7 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
                for chunk in chunks]
     hashes = {f.key: [h for _, h in chunk] for f, chunk in zip(futures, chunks)}
     done = ok = late_skips = 0
+    backfilled: dict[str, tuple[list[float], list[float]]] = {}   # actuator -> (its back-filled times, later ones)
     last_line = 0.0
     threads: set[int] = set()
     times = {"read_s": 0.0, "diagnosis_s": 0.0, "task_s": 0.0, "diagnosis_cpu_s": 0.0, "task_cpu_s": 0.0}
@@ -345,6 +346,9 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
                 failures.add(rec, f"not stored: {e}", h)
                 continue
             done += added
+            later = store.later_tests(rec.actuator_id, rec.time_h) if backfill and added else []
+            if later:       # earlier tests go in first (the order above): these later ones were there before
+                backfilled.setdefault(rec.actuator_id, ([], later))[0].append(rec.time_h)
             # nothing added, no error: the store got the test meanwhile (another batch, a monitor) or
             # holds it from another file (a log cut at two lengths): counted as skipped, not lost
             late_skips += 1 - added
@@ -378,6 +382,7 @@ def _run(client, todo, store: HistoryStore, failures: FailureLog, method: str, s
     ok = max(ok, 1)
     info = client.run(worker_info)
     return {"diagnosed": done, "skipped": summary["skipped"] + late_skips, "batch_time_s": time.perf_counter() - t0,
+            "backfilled": [backfill_note(a, t, later) for a, (t, later) in sorted(backfilled.items())],
             "workers": len(client.scheduler_info().get("workers", {})),
             "worker_setup": list(info.values()), "task_numba_threads": sorted(threads),
             **{f"mean_{k}": v / ok for k, v in times.items()}}
@@ -393,6 +398,10 @@ def format_summary(s: dict) -> str:
                      f"of {s['scheduler']}; batch {s['batch_time_s']:.1f} s, total {s['wall_time_s']:.1f} s")
         lines.append(f"  per task on the workers: read {s['mean_read_s']:.2f} s, diagnosis {s['mean_diagnosis_s']:.2f} s, "
                      f"task {s['mean_task_s']:.2f} s")
+    for note in s.get("backfilled", [])[:5]:
+        lines.append(f"  {note}")
+    if len(s.get("backfilled", [])) > 5:
+        lines.append(f"  back-filled: {len(s['backfilled']) - 5} more actuator(s) (--json lists them)")
     for f in s.get("failures", [])[:5]:
         lines.append(f"  failed: {f['path']}: {f['reason']}")
     if s["failed"]:

@@ -353,6 +353,27 @@ class HistoryStore:
                              f"kept: correct the usage if it is a typing error")
         return notes
 
+    def later_tests(self, actuator_id: str, time_h: float) -> list[float]:
+        """Times [h] of the actuator's stored tests after ``time_h``, in order."""
+        return [t for (t,) in self.conn.execute("SELECT time_h FROM tests WHERE actuator_id = ? AND time_h > ? "
+                                                "ORDER BY time_h", (actuator_id, float(time_h)))]
+
+    def backfill_notes(self, records: list[HealthRecord]) -> list[str]:
+        """Notes for records that go in before later stored tests of their actuator (``--backfill``)
+        and that the store does not hold yet: the RULs given at those later tests -- published by the
+        monitor, printed by ``prognose`` -- were computed without them and would now read otherwise.
+        One note per actuator; call before the append."""
+        by: dict[str, list[float]] = {}
+        for r in records:
+            by.setdefault(r.actuator_id, []).append(float(r.time_h))
+        notes = []
+        for a, times in sorted(by.items()):
+            new = [t for t in sorted(set(times)) if self.later_tests(a, t) and not self.conn.execute(
+                "SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ?", (a, t)).fetchone()]
+            if new:
+                notes.append(backfill_note(a, new, self.later_tests(a, new[0])))
+        return notes
+
     def _writable(self) -> None:
         if self.readonly:
             raise PrognosticsError(f"{self.path}: opened read-only; nothing written")
@@ -554,6 +575,15 @@ class HistoryStore:
         finally:
             self.conn.execute("COMMIT")
         return history_from_records(recs, reps, self.settings.history.default_std)
+
+
+def backfill_note(actuator_id: str, times: list[float], later: list[float]) -> str:
+    """The line said when tests at ``times`` [h] go in before the stored tests at ``later``."""
+    at = ", ".join(f"{t:g}" for t in times[:5]) + (", ..." if len(times) > 5 else "")
+    span = f"{later[0]:g} h" if len(later) == 1 else f"{later[0]:g}-{later[-1]:g} h"
+    return (f"back-filled: actuator {actuator_id}: {len(times)} test(s) at {at} h go in before {len(later)} later "
+            f"stored test(s) ({span}); the RULs given at those tests (by the monitor, by prognose) were computed "
+            f"without them, and prognose now reads them in their place")
 
 
 def _busy(e: sqlite3.OperationalError) -> bool:
