@@ -118,19 +118,28 @@ def on_usage_clock(hist: History, required=None) -> tuple[History, dict[str, Usa
     Raises :class:`PrognosticsError` naming the actuator where a test of its current unit has no
     usage, or where the usage does not grow (no rate to give hours by) -- for the actuators in
     ``required`` (default: all); others that cannot be put on the clock are left out (they
-    inform no fleet prior on it) with that reason."""
+    inform no fleet prior on it) with that reason. Computed once per History (a History is not
+    changed once built): the monitor's step asks twice, for the fleet prior and the prognosis."""
+    if hist._usage_clock is None:
+        hist._usage_clock = _usage_clock(hist)
+    out, clocks, refused = hist._usage_clock
+    bad = [why for a, why in refused.items() if required is None or a in required]
+    if bad:
+        raise PrognosticsError(bad[0])
+    return out, clocks, dict(refused)
+
+
+def _usage_clock(hist: History) -> tuple[History, dict[str, UsageClock], dict[str, str]]:
+    """:func:`on_usage_clock` with every actuator that cannot be put on the clock refused."""
     out, clocks, usage, refused = History(), {}, {}, {}
     for a, h in hist.actuators.items():
         rate, keep = h.usage_per_hour(), h.usage_window()
         missing = keep & ~np.isfinite(h.usage)
         if rate is None or missing.any():
-            why = (f"actuator {a}: the usage clock needs a usage that grows over at least 2 tests (history add "
-                   f"--usage, or a usage column); or use --clock time" if rate is None else
-                   f"actuator {a}: the usage clock needs a usage at every test of the current unit; the test at "
-                   f"time_h={h.time_h[missing][0]:g} has none")
-            if required is None or a in required:
-                raise PrognosticsError(why)
-            refused[a] = why
+            refused[a] = (f"actuator {a}: the usage clock needs a usage that grows over at least 2 tests (history "
+                          f"add --usage, or a usage column); or use --clock time" if rate is None else
+                          f"actuator {a}: the usage clock needs a usage at every test of the current unit; the "
+                          f"test at time_h={h.time_h[missing][0]:g} has none")
             continue
         u, t, k, std = _merge_equal(h.usage[keep], h.time_h[keep], h.k[keep], h.std[keep],
                                     [tr for tr, _f, _a in h.repairs])

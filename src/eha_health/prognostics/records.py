@@ -153,6 +153,8 @@ def trend_start_h(repairs, fault: str) -> float | None:
 @dataclass
 class History:
     actuators: dict = field(default_factory=dict)   # id -> ActuatorHistory
+    #: the usage-clock view, computed at its first use (:func:`clock.on_usage_clock`)
+    _usage_clock: tuple | None = field(default=None, repr=False, compare=False)
 
 
 def history_from_records(recs: list[HealthRecord], repairs: list[tuple], floor: float) -> History:
