@@ -371,7 +371,7 @@ class UnitScore:
 def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float],
                          progress: Callable[[str], None] | None = None) -> list[UnitScore]:
     from ..prognostics.rul import (FaultPrediction, apply_fleet_prior, fleet_prior, life_estimate, overall,
-                      prepare_fault, predict_series, weighted_quantiles)
+                                   prepare_fault, predict_series, shared_wear, weighted_quantiles)
     from ..prognostics.metrics import naive_rul
     b = s.bench
     first = b.first_prediction_test - 1
@@ -405,7 +405,7 @@ def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float],
         ks = [k for (uj, k) in points if uj == ui]
         rows = []
         for k in ks:
-            ov = overall(preds[(ui, k)], k + 1)
+            ov = overall(preds[(ui, k)], k + 1, shared_wear(preds[(ui, k)], s))
             rt = u.eol_h - u.test_h[k]
             # no RUL (no trend): no failure expected before the next check
             p_next = ov.p_fail(b.test_interval_h) if ov.samples is not None else 0.0

@@ -258,6 +258,9 @@ def format_prognosis(obj: dict, next_check_h: float) -> str:
                              f"{_fmt_usage(f['rul_p95_usage'])}] (the fit's clock)")
             if name == "overall" and f.get("dominant_fault"):
                 lines.append(f"  {'':8s} dominant fault: {f['dominant_fault']}")
+            for g in f.get("shared_wear") or []:
+                lines.append(f"  {'':8s} {' and '.join(g)} wear together (their increments move together): the 95 % "
+                             "end holds for any dependence between them")
             if f.get("unrecorded_repair_h") is not None:
                 lines.append(f"  {'':8s} K fell at {f['unrecorded_repair_h']:g} h and stayed down: an unrecorded repair, "
                              "the trend restarts there (record it: history repair)")

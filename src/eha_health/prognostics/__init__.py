@@ -9,6 +9,7 @@ Nothing here imports ROS. Modules (docs/prognostics.md has the method and the fi
 * :mod:`.degradation` -- linear / exponential / power / Wiener models on one Kalman filter
 * :mod:`.online`      -- the same filter updated one test at a time
 * :mod:`.scatter`     -- a history's own checks: failed diagnoses, unrecorded repairs, its noise
+* :mod:`.dependence`  -- faults that wear together: the test, and the overall interval it widens
 * :mod:`.clock`       -- the usage clock: wear against usage, hours from the usage rate
 * :mod:`.rul`         -- RUL distributions per fault and overall, ``prognose``, ``plot_prognosis``
 * :mod:`.prior_cache` -- the fleet prior kept up to date one actuator at a time (the monitor)

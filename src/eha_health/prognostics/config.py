@@ -71,6 +71,7 @@ class PrognosisSettings:
     outlier_sigma: float = _f("-", "a test this many scatter sd off its neighbours' median is set aside (0: never, and no unrecorded repair)")
     outlier_min_jump: float = _f("-", "smallest K distance from the neighbours' median for a test to be set aside")
     repair_fall: float = _f("-", "a fall of K that persists by at least this (and outlier_sigma sd) is an unrecorded repair")
+    shared_wear_alpha: float = _f("-", "faults whose test-to-test increments move together at this one-sided significance: the overall p95 holds for any positive dependence between them (0: faults independent)")
     samples: int = _f("-", "Monte Carlo samples per RUL distribution")
     horizon_factor: float = _f("-", "RUL horizon in data spans")
     seed: int = _f("-", "seed of the Monte Carlo sampling")
@@ -234,6 +235,8 @@ def _validate(s: Settings) -> None:
     if not (p.outlier_sigma >= 0 and p.outlier_min_jump >= 0 and p.repair_fall >= 0):
         raise PrognosticsError("prognosis: outlier_sigma, outlier_min_jump and repair_fall must be >= 0 "
                                "(outlier_sigma 0: none set aside, no unrecorded repair)")
+    if not 0 <= p.shared_wear_alpha < 1:
+        raise PrognosticsError(f"prognosis.shared_wear_alpha must be within [0, 1) (0: off), got {p.shared_wear_alpha}")
     if p.next_check_h <= 0 or p.samples < 100:
         raise PrognosticsError("prognosis: next_check_h must be > 0 h and samples >= 100")
     known = {"linear", "exponential", "power", "wiener"}

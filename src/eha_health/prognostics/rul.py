@@ -267,6 +267,9 @@ class FaultPrediction:
     raw_samples: np.ndarray | None = None  # [M] before the horizon cut (few points since onset: for the fleet prior)
     usage_samples: np.ndarray | None = None  # [M] usage RUL where fitted on the usage clock (samples: hours) ...
     usage_weights: np.ndarray | None = None  # ... and its weights where they differ (the overall's)
+    p95_shared: float | None = None       # overall: the p95 that holds where faults wear together [h] ...
+    usage_p95_shared: float | None = None  # ... and in usage (dependence.py)
+    shared_wear: list | None = None       # overall: groups of faults seen wearing together
 
     def quantiles(self) -> np.ndarray | None:
         """(p05, median, p95) of the RUL [h]; inf beyond the horizon."""
@@ -274,6 +277,8 @@ class FaultPrediction:
             return None
         if getattr(self, "_q", None) is None:
             self._q = weighted_quantiles(self.samples, self.weights, (0.05, 0.5, 0.95))
+            if self.p95_shared is not None:
+                self._q[2] = max(self._q[2], self.p95_shared)
         return self._q
 
     def usage_quantiles(self) -> np.ndarray | None:
@@ -281,7 +286,10 @@ class FaultPrediction:
         if self.usage_samples is None:
             return None
         w = self.weights if self.usage_weights is None else self.usage_weights
-        return weighted_quantiles(self.usage_samples, w, (0.05, 0.5, 0.95))
+        q = weighted_quantiles(self.usage_samples, w, (0.05, 0.5, 0.95))
+        if self.usage_p95_shared is not None:
+            q[2] = max(q[2], self.usage_p95_shared)
+        return q
 
     def p_fail(self, within_h: float) -> float | None:
         """P(RUL <= within_h), counting samples beyond the horizon as later: exact while
@@ -373,8 +381,28 @@ def _cdf_on(grid: np.ndarray, x: np.ndarray, w: np.ndarray | None) -> tuple[np.n
     return cw[np.searchsorted(xs, grid, "right")], cw[np.searchsorted(xs, grid, "left")]
 
 
-def overall(preds: dict[str, FaultPrediction], n_tests: int) -> FaultPrediction:
+def shared_wear(preds: dict[str, FaultPrediction], s: Settings) -> list[set]:
+    """Groups of an actuator's faults whose wear is seen moving together
+    (:func:`dependence.shared_groups` on each fault's series since its onset, at
+    ``prognosis.shared_wear_alpha``; 0: none)."""
+    from .dependence import shared_groups
+    alpha = s.prognosis.shared_wear_alpha
+    series = {f: (p.onset_h + p.series.tau_h, p.series.y) for f, p in preds.items()
+              if p.samples is not None and p.series is not None and p.onset_h is not None}
+    if alpha <= 0 or len(series) < 2:
+        return []
+    return shared_groups(series, alpha)[0]
+
+
+def overall(preds: dict[str, FaultPrediction], n_tests: int, groups: list[set] | None = None) -> FaultPrediction:
     """First fault to reach its threshold, faults independent: P(R <= t) = 1 - prod_f (1 - F_f(t)).
+
+    ``groups``: faults seen wearing together (:func:`shared_wear`). Independence stays the
+    median and P(failure before the next check) -- the earliest, conservative, answer under any
+    positive dependence --, and the 95 % quantile becomes that of each group taken comonotone,
+    P(R <= t) = 1 - prod_groups (1 - max_(f in group) F_f(t)): the latest first crossing any
+    positive dependence within the groups allows (:mod:`dependence`), so the interval holds
+    whatever their dependence is.
 
     Computed from each fault's weighted empirical CDF F_f, not by pairing samples: a fault on
     the fleet prior carries importance weights, and the product of two such weight sets has
@@ -393,11 +421,22 @@ def overall(preds: dict[str, FaultPrediction], n_tests: int) -> FaultPrediction:
     le, lt = zip(*(_cdf_on(grid, p.samples, p.weights) for p in have.values()))
     le, lt = np.array(le).reshape(len(have), -1), np.array(lt).reshape(len(have), -1)   # [F, T]
     cdf = 1.0 - np.prod(1.0 - le, 0)
+    p95_shared = None
+    groups = [g & set(have) for g in groups or ()]
+    groups = [g for g in groups if len(g) > 1]
+    if groups:
+        names = list(have)
+        rows = [le[[names.index(f) for f in g]].max(0) for g in groups]
+        rows += [le[i] for i, f in enumerate(names) if not any(f in g for g in groups)]
+        hit = np.nonzero(1.0 - np.prod(1.0 - np.array(rows), 0) >= 0.95 - 1e-12)[0]
+        p95_shared = float(grid[hit[0]]) if len(hit) else math.inf
     beyond = 1.0 - (cdf[-1] if len(cdf) else 0.0)             # no fault within the horizon
     mass = np.diff(cdf, prepend=0.0)
     if beyond > 1e-12 or not len(grid):   # an atom at inf only where some mass lies beyond the horizon
         grid, mass = np.append(grid, np.inf), np.append(mass, beyond)
     out = FaultPrediction(grid, np.maximum(mass, 0.0), "first-to-threshold", n_tests=n_tests)
+    out.p95_shared = p95_shared
+    out.shared_wear = [sorted(g) for g in groups] or None
     out.horizon_h = min(p.horizon_h for p in have.values())
     out.fleet_prior = any(p.fleet_prior for p in have.values())     # it is built from that fault's samples
     p_first = {}
@@ -744,17 +783,20 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
         h = hist.actuators[a]
         rate = clocks[a].rate if a in clocks else h.usage_per_hour()
         faults = {f: summary(preds[a][f], nc, rate, clocks.get(a)) for f in FAULTS}
-        ov = overall(preds[a], len(h.time_h))
+        groups = shared_wear(preds[a], s)
+        ov = overall(preds[a], len(h.time_h), groups)
         if a in clocks and ov.samples is not None:     # the first fault to use its usage up
             ovu = overall({f: dataclasses.replace(p, samples=p.usage_samples) for f, p in preds[a].items()},
-                          len(h.time_h))
-            ov.usage_samples, ov.usage_weights = ovu.samples, ovu.weights
+                          len(h.time_h), groups)
+            ov.usage_samples, ov.usage_weights, ov.usage_p95_shared = ovu.samples, ovu.weights, ovu.p95_shared
         o = summary(ov, nc, rate, clocks.get(a))
         o["dominant_fault"] = getattr(ov, "dominant", None)
         if hasattr(ov, "p_first"):
             o["p_first"] = {f: round(v, 4) for f, v in ov.p_first.items()}
         if getattr(ov, "note", None):
             o["note"] = ov.note
+        if ov.shared_wear:
+            o["shared_wear"] = ov.shared_wear
         for key in _FAULT_ONLY:
             o.pop(key, None)
         if clocks:
