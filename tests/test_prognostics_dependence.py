@@ -128,3 +128,14 @@ def test_the_table_says_which_faults_wear_together(tmp_path, capsys):
     assert main(["prognose", "--history", str(tmp_path / "h.csv")]) == 0
     out = capsys.readouterr().out
     assert "fsj and gm wear together" in out
+
+
+def test_the_monitor_status_says_which_faults_wear_together():
+    from eha_health.monitoring.prognosis import Outcome, rul_values
+    hist, truth = _history(12, True, 1)
+    out = prognose(hist)["actuators"]
+    shared = [a for a in truth if out[a]["overall"].get("shared_wear")]
+    assert shared and len(shared) < len(truth)
+    assert rul_values(Outcome(True, out[shared[0]], time_h=1.0))["shared_wear"] == "fsj+gm"
+    alone = next(a for a in truth if a not in shared)
+    assert "shared_wear" not in rul_values(Outcome(True, out[alone], time_h=1.0))

@@ -135,6 +135,8 @@ def rul_values(outcome: Outcome | None) -> dict:
     out["dominant_fault"] = ov.get("dominant_fault") or "none"
     if ov.get("reason"):
         out["rul_reason"] = ov["reason"]
+    if ov.get("shared_wear"):    # faults seen wearing together: the overall p95 holds for any dependence
+        out["shared_wear"] = "; ".join("+".join(g) for g in ov["shared_wear"])
     for f in FAULT_KEYS:
         F = prog["faults"][f]
         for k in RUL_FIELDS:
