@@ -7,7 +7,7 @@ Each target generates inputs nobody wrote on purpose and feeds them to the real 
 * ``importer``: channel maps (columns, units, scales, keys) and the delimited text they read.
 * ``csv``: the Response CSV format, damaged (cut, characters replaced, headers shuffled).
 * ``history``: HISTORY.csv rows (values, columns, order; and trends as diagnoses make them, with
-  noise, failed diagnoses and unrecorded repairs) read and imported into a real SQLite
+  noise, failed diagnoses and unrecorded repairs; and MAINTENANCE.csv rows beside valid ones) read and imported into a real SQLite
   store, and what was taken in prognosed (ordered RUL quantiles, p_fail_next in [0, 1], or a
   reason); a damaged store file opened.
 * ``messages``: node inputs (NaN / inf, wrong array sizes, stamps out of order, bad marks)
@@ -308,8 +308,15 @@ class HistoryTarget:
         # not stated, stated, or stated as 0 (an exact synthetic K)
         trend = st.tuples(st.integers(3, 40), st.integers(0, 2 ** 32 - 1), st.tuples(fault, fault, fault),
                           st.sampled_from([1e-3, 0.1, 1.0, 1e3]), st.sampled_from(["none", "stated", "zero"]))
+        # a MAINTENANCE.csv beside a valid HISTORY.csv: fault, action and time cells of any kind
+        mcols = ["actuator_id", "time_h", "fault", "action", "note"]
+        mheader = st.one_of(st.just(mcols), st.lists(st.sampled_from(mcols + ["bogus"]), min_size=0, max_size=6))
+        mcell = st.one_of(num.map(str), st.sampled_from(["A1", "B2", "", "gm", "fsj", "bkl", "all", "K_GM", "repair",
+                                                         "replace", "swap", "a,b"]))
+        maint = st.tuples(valid, mheader, st.lists(st.lists(mcell, min_size=0, max_size=6), max_size=8))
         return st.one_of(st.tuples(st.just("csv"), st.tuples(header, rows)),
                          st.tuples(st.just("valid"), valid),
+                         st.tuples(st.just("maint"), maint),
                          st.tuples(st.just("trend"), trend),
                          st.tuples(st.just("db"), flips))
 
@@ -362,6 +369,8 @@ class HistoryTarget:
             tally.handled += 1
             return
         path = self.tmp / "history.csv"
+        if kind == "maint":
+            return self._check_maintenance(arg, path, db, tally)
         with path.open("w", newline="") as f:
             w = csv.writer(f)
             if kind == "csv":
@@ -386,6 +395,34 @@ class HistoryTarget:
             obj = self._prognose(db)
             if kind == "trend" and arg[3] != 1.0:
                 self._same_in_other_units(obj, arg, path)
+        tally.handled += 1
+
+    def _check_maintenance(self, arg, path: Path, db: Path, tally: Tally) -> None:
+        """A HISTORY.csv and a MAINTENANCE.csv imported together: both go in, or neither."""
+        import csv
+
+        from ..prognostics.config import PrognosticsError
+        from ..prognostics.store import HistoryStore
+        tests, mheader, mrows = arg
+        mpath = self.tmp / "maintenance.csv"
+        for p, header, rows in ((path, self.header(False), tests), (mpath, mheader, mrows)):
+            with p.open("w", newline="") as f:
+                w = csv.writer(f)
+                w.writerow(header)
+                w.writerows(rows)
+        db.write_bytes(self.db_bytes)
+        with HistoryStore(db) as s:
+            before = (s.list_tests(), s.list_maintenance())
+            try:
+                added, actions = s.import_files(path, mpath)
+            except PrognosticsError as e:
+                if (s.list_tests(), s.list_maintenance()) != before:
+                    raise AssertionError("a refused import changed the store") from e
+                return tally.refuse(e, (PrognosticsError,))
+            if (len(s.list_tests()), len(s.list_maintenance())) != (len(before[0]) + added, len(before[1]) + actions):
+                raise AssertionError("the store does not hold what the import reported")
+        if added:
+            self._prognose(db)
         tally.handled += 1
 
     THRESHOLDS = {"gm": 0.816, "fsj": 0.915, "bkl": 0.838}     # fixed: no reference runs
