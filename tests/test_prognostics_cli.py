@@ -368,6 +368,28 @@ def test_a_misspelled_std_column_is_refused_and_a_plot_without_suffix_is_a_png(d
     assert (tmp_path / "fig.png").read_bytes()[:4] == b"\x89PNG"
 
 
+def test_a_plot_that_cannot_be_written_is_one_line(db, tmp_path, capsys):
+    (tmp_path / "d.png").mkdir()
+    for target in (tmp_path / "d.png", tmp_path / "d.png" / "x" / "f.png"):
+        code, out, err = run(capsys, ["prognose", "--history", str(db), "--plot", str(target)])
+        assert code == 2 and str(target) in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_one_actuator_on_the_usage_clock_is_answered_alone(tmp_path, capsys):
+    """Asked for U1 on the usage clock, the answer held U1 and every actuator of the history that
+    could not go on the clock (null RULs): an independent probe, 2026-11-29."""
+    rows = [[a, 40.0 * i, round(0.001 * 40 * i, 5), 0, 0, 0.003, 0.003, 0.003] + ([30.0 * i] if a == "U1" else [""])
+            for a in ("U1", "U2", "U3") for i in range(8)]
+    h = write_csv(tmp_path / "h.csv", rows, ("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj",
+                                           "std_bkl", "usage"))
+    code, out, err = run(capsys, ["prognose", "--history", str(h), "--clock", "usage", "--actuator", "U1", "--json"])
+    assert code == 0, err
+    assert list(json.loads(out)["actuators"]) == ["U1"]
+    code, out, err = run(capsys, ["prognose", "--history", str(h), "--clock", "usage", "--json"])
+    got = json.loads(out)["actuators"]
+    assert list(got) == ["U1", "U2", "U3"] and got["U2"]["overall"]["rul_median_h"] is None
+
+
 def test_a_back_filled_repair_says_where_the_trend_restarts(db, capsys):
     # a maintenance log entered late: a repair before one already recorded is kept, and said to
     # leave the trend where the later one restarts it (before, it read "its trend restarts there")

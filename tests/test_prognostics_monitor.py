@@ -101,6 +101,27 @@ def test_step_refuses_bad_settings_and_survives_a_bad_file(tmp_path, diagnosis_a
     assert junk.read_bytes() == b"this is not a database" * 100
 
 
+def test_a_prognosis_that_fails_is_a_history_error_not_a_failed_diagnosis(tmp_path, diagnosis_at_500h):
+    """Settings whose requirement the healthy actuator breaks: no threshold. The step appends the
+    diagnosed test and says why there is no RUL; it raised before, and the node reported the
+    window "not diagnosed" (an independent probe, 2026-11-29), and its status and key values
+    carry the line."""
+    from eha_health.monitoring.prognosis import rul_values
+    from eha_health.prognostics.config import load_settings
+    from eha_health.prognostics.thresholds import _thresholds
+    tight = load_settings(overrides={"requirements": [{"name": "r", "metric": "sine_peak_error", "limit": 1e-5}]})
+    db = tmp_path / "h.sqlite"
+    last = seed_history(db)
+    step = PrognosisStep(db, "eha", settings=tight)
+    _thresholds.cache_clear()
+    out = step.after_diagnosis(diagnosis_at_500h[0], last + 180.0)
+    assert out.appended and count(db) == 10 and out.prognosis is None
+    assert "already breaks requirement(s) r" in out.error
+    assert rul_values(out)["history_error"] == out.error
+    level, _ = step.level(out)
+    assert level == "OK"       # no RUL to warn on; the node escalates the error itself (WARN)
+
+
 def test_monitor_node_appends_and_publishes_the_rul(tmp_path):
     from eha_health.io.bagrun import history_times
     from eha_health.ros.graph import Graph

@@ -71,7 +71,10 @@ def _prognostics_settings(args):
     if not args.history:
         raise UsageError("--settings is for the prognosis: it needs --history")
     from ..prognostics.config import load_settings
-    load_settings(args.settings)     # a PrognosticsError (ValueError) names what is wrong
+    from ..prognostics.thresholds import failure_thresholds
+    # a PrognosticsError (ValueError) names what is wrong; the thresholds too (a requirement the
+    # healthy actuator breaks), which the monitor would otherwise meet at its first test (about 1 s)
+    failure_thresholds(load_settings(args.settings))
     return args.settings
 
 

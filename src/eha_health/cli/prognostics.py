@@ -286,7 +286,10 @@ def cmd_prognose(args) -> int:
     if args.plot and not Path(args.plot).suffix:
         args.plot += ".png"         # what matplotlib writes; the path said is the path written
     if args.plot:
-        obj = plot_prognosis(hist, args.plot, args.actuator, args.next_check_h, settings=s)
+        try:
+            obj = plot_prognosis(hist, args.plot, args.actuator, args.next_check_h, settings=s)
+        except (PermissionError, IsADirectoryError, NotADirectoryError) as e:
+            raise UsageError(f"{args.plot}: cannot write the plot ({e.strerror or type(e).__name__})") from None
         plotted = next(iter(obj["actuators"]))
         if args.actuator is None:   # the plot shows one actuator; the answer is about all of them
             obj = prognose(hist, None, args.next_check_h, settings=s)

@@ -79,7 +79,9 @@ _RANK = {"OK": 0, "WARN": 1, "ERROR": 2}
 
 def escalate(v: Verdict, level: str, why: str | None, values: dict) -> Verdict:
     """``v`` with more key values (the prognosis), raised to ``level`` if that is worse, ``why`` in the message."""
-    msg = v.message if not why else (why + "; " + v.message if _RANK[level] > _RANK.get(v.level, 0)
+    # after a raised level, a bare "healthy" read as a verdict on the whole: it is the coefficients'
+    tail = "coefficients healthy" if v.message == "healthy" else v.message
+    msg = v.message if not why else (why + "; " + tail if _RANK[level] > _RANK.get(v.level, 0)
                                      else v.message + "; " + why)
     worst = level if _RANK[level] > _RANK.get(v.level, 0) else v.level
     return Verdict(worst, msg, {**v.values, **values})

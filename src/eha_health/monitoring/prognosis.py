@@ -87,6 +87,9 @@ class PrognosisStep:
                         out.prognosis = obj["actuators"][self.actuator_id]
             except (PrognosticsError, sqlite3.Error, OSError) as e:   # an unreadable, locked or full history file
                 out.error = str(e) if isinstance(e, PrognosticsError) else f"history {self.history}: {e}"
+            except Exception as e:    # noqa: BLE001 -- the test was diagnosed: a failed prognosis must not
+                # read as a failed diagnosis (the node's poll would report the window "not diagnosed")
+                out.error = f"prognosis failed: {type(e).__name__}: {' '.join(str(e).split())[:300]}"
             return out
 
     def level(self, outcome: Outcome) -> tuple[str, str | None]:

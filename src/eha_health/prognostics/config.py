@@ -186,10 +186,13 @@ def _merge(base: dict, over: dict) -> dict:
 
 def _read(path) -> dict:
     try:
-        data = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as e:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError, UnicodeDecodeError) as e:
         raise PrognosticsError(f"{path}: cannot read settings ({e.__class__.__name__}: {str(e).splitlines()[0]})") \
             from None
+    if data is not None and not isinstance(data, dict):
+        raise PrognosticsError(f"{path}: settings must be a mapping of sections (thresholds:, prognosis:, ...), "
+                               f"got {type(data).__name__}")
     return data or {}
 
 
@@ -246,6 +249,44 @@ def _validate(s: Settings) -> None:
         raise PrognosticsError(f"models.stochastic_prior must be within (0, 1), got {s.models.stochastic_prior}")
     if not 0 < s.thresholds.default <= s.thresholds.search_max <= FAULT_UPPER:
         raise PrognosticsError(f"thresholds: need 0 < default <= search_max <= {FAULT_UPPER} (the identification bound)")
+    t = s.thresholds
+    # a tolerance of 0 never ends the bisection; a coarse one moves the threshold (5: K_GM 0.816 -> 0.844)
+    _check(0 < t.tolerance <= 0.01, "thresholds.tolerance", t.tolerance, "within (0, 0.01]")
+    _check(2 <= t.scan_points <= 1000, "thresholds.scan_points", t.scan_points, "within [2, 1000]")
+    _check(s.history.default_std > 0, "history.default_std", s.history.default_std, "> 0")
+    _check(p.horizon_factor > 0, "prognosis.horizon_factor", p.horizon_factor, "> 0 (data spans)")
+    _check(p.min_std > 0, "prognosis.min_std", p.min_std, "> 0 (a zero variance makes the likelihood singular)")
+    _check(p.onset_sigma > 0, "prognosis.onset_sigma", p.onset_sigma, "> 0")
+    _check(p.onset_delta >= 0, "prognosis.onset_delta", p.onset_delta, ">= 0")
+    _check(p.seed >= 0, "prognosis.seed", p.seed, ">= 0")
+    # memory: a batch of 256 series holds samples x 30 floats each
+    _check(p.samples <= 100_000, "prognosis.samples", p.samples, "within [100, 100000]")
+    m = s.models
+    _check(m.criterion in ("evidence", "aicc"), "models.criterion", m.criterion, "evidence or aicc")
+    _check(m.aic_delta_max > 0, "models.aic_delta_max", m.aic_delta_max, "> 0")
+    _check(len(set(m.names)) == len(m.names), "models.names", list(m.names), "without a model named twice")
+    for name, ok, what in (("exponential_rate", lambda v: v != 0, "finite and not 0"),
+                           ("power_exponent", lambda v: v > 0, "> 0"),
+                           ("wiener_exponential_rate", lambda v: v != 0, "finite and not 0"),
+                           ("wiener_exponent", lambda v: v > 0, "> 0"),
+                           ("scatter", lambda v: v >= 0, ">= 0"),
+                           ("wiener_scatter", lambda v: v >= 0, ">= 0"),
+                           ("diffusion", lambda v: v > 0, "> 0"),
+                           ("rate_diffusion", lambda v: v >= 0, ">= 0")):
+        grid = getattr(m, name)
+        _check(len(grid) > 0 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                                     and ok(v) for v in grid), f"models.{name}", list(grid),
+               f"a non-empty list of numbers each {what}")
+    f = s.fleet
+    _check(f.min_points >= 2, "fleet.min_points", f.min_points, ">= 2")
+    _check(f.min_members >= 1, "fleet.min_members", f.min_members, ">= 1")
+    _check(f.use_below_points >= 0, "fleet.use_below_points", f.use_below_points, ">= 0")
+    _check(s.bench.n_units >= 1, "bench.n_units", s.bench.n_units, ">= 1")
+
+
+def _check(ok: bool, name: str, value, need: str) -> None:
+    if not ok:
+        raise PrognosticsError(f"{name} must be {need}, got {value!r}")
 
 
 def settings_table(obj: Any, prefix: str = "") -> list[tuple[str, Any, str, str]]:

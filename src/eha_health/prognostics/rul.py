@@ -804,6 +804,8 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
         out[a] = {"faults": faults, "overall": o}
         detail[a] = {**preds[a], "overall": ov, "history": h}
     for a, why in refused.items():              # no usage to put it on the clock: said, no RUL
+        if actuator is not None and a != actuator:
+            continue                            # one actuator asked for: its answer alone
         n = len(raw.actuators[a].time_h)
         out[a] = {"faults": {f: summary(FaultPrediction(None, None, threshold=thr[f], n_tests=n, reason=why), nc, None)
                              for f in FAULTS},

@@ -6,7 +6,10 @@ reference EHA, simulated noise-free on the FDI sequence, breaks any requirement 
 ``scan_points`` values in (0, search_max], then the first crossing is bisected to
 ``tolerance``. A fault that breaks no requirement below ``search_max`` keeps the default
 threshold (K = 1, the limit by definition of the coefficients); so does every fault
-when no requirement is set.
+when no requirement is set. A requirement lowers the threshold, never raises it above the
+default: a limit that breaks at K 1.49 would otherwise give 1.49 where a slightly looser one,
+never broken, gives 1 (an independent probe, 2026-11-29: loosening a limit must not lower the
+threshold).
 
 Metrics (all on the noise-free reference response, SI):
 
@@ -26,7 +29,7 @@ import numpy as np
 from eha_health import FDISequence, Faults, simulate
 
 from ..physics.faults import FAULT_KEYS
-from .config import Settings, load_settings
+from .config import PrognosticsError, Settings, load_settings
 
 #: Short fault names (gm, fsj, bkl): :data:`eha_health.physics.faults.FAULT_KEYS`.
 FAULTS = FAULT_KEYS
@@ -100,7 +103,8 @@ def _thresholds(requirements: tuple, ts) -> tuple:
         broken0 = _broken(healthy, requirements)
         if broken0:
             names = ", ".join(q.name for q in broken0)
-            raise ValueError(f"the healthy reference EHA already breaks requirement(s) {names}")
+            raise PrognosticsError(f"the healthy reference EHA already breaks requirement(s) {names}: "
+                                   f"no threshold (loosen their limits in the settings)")
         lo, hi, hit = 0.0, None, None
         for k in np.linspace(0.0, ts.search_max, ts.scan_points + 1)[1:]:
             b = _broken(_metrics_at(fault, k, requirements, seq), requirements)
@@ -108,7 +112,7 @@ def _thresholds(requirements: tuple, ts) -> tuple:
                 hi, hit = float(k), b
                 break
             lo = float(k)
-        if hi is None:
+        if hi is None or lo >= ts.default:      # nothing breaks below the default limit
             out.append(Threshold(fault, ts.default, None, None, None, None, None))
             continue
         while hi - lo > ts.tolerance:
@@ -119,6 +123,9 @@ def _thresholds(requirements: tuple, ts) -> tuple:
             else:
                 lo = mid
         q = hit[0]
+        if round(hi, 6) >= ts.default:
+            out.append(Threshold(fault, ts.default, None, None, None, None, None))
+            continue
         out.append(Threshold(fault, round(hi, 6), q.name, q.metric, q.limit, METRICS[q.metric][0],
                              healthy[q.name]))
     return tuple(out)
