@@ -512,3 +512,10 @@ def test_a_test_older_than_the_latest_goes_in_only_with_backfill(tmp_path, capsy
     assert "back-filled: actuator A1: 2 test(s) at 5, 15 h go in before 4 later stored test(s) (10-40 h)" in err
     assert main(["history", "import", str(old), "--history", str(db), "--backfill"]) == 0   # held: nothing to say
     assert "back-filled" not in capsys.readouterr().err
+    # and the history keeps saying which tests came in after later ones
+    with HistoryStore(db, readonly=True) as st:
+        assert {t["time_h"]: t["backfilled"] for t in st.list_tests("A1")} == {
+            0.0: False, 5.0: True, 10.0: False, 15.0: True, 20.0: True, 30.0: False, 40.0: False}
+    assert main(["history", "list", "--history", str(db)]) == 0
+    out = capsys.readouterr().out
+    assert sum("(back-filled" in line for line in out.splitlines()) == 3

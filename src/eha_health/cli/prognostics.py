@@ -134,7 +134,8 @@ def cmd_history_list(args) -> int:
                       for n in FAULT_KEYS)
         use = "" if t["usage"] is None else f"{t['usage']:g}"
         print(f"{t['actuator_id']:12s} {_fmt_time(t['time_h'])} {ks} {use:>8s}  {t['method'] or '':14s} "
-              f"{Path(t['source_path']).name if t['source_path'] else ''}")
+              f"{Path(t['source_path']).name if t['source_path'] else ''}"
+              + ("  (back-filled: stored after later tests)" if t["backfilled"] else ""))
     for m in maint:
         print(f"{m['actuator_id']:12s} {_fmt_time(m['time_h'])} {m['action']} {m['fault']}" +
               (f" ({m['note']})" if m["note"] else ""))

@@ -539,16 +539,22 @@ class HistoryStore:
             raise PrognosticsError(f"unknown actuator {actuator_id!r} in {self.path}")
 
     def list_tests(self, actuator_id: str | None = None) -> list[dict]:
-        """Stored tests (dicts with the schema's columns), by actuator and time."""
+        """Stored tests (dicts with the schema's columns), by actuator and time; ``backfilled``:
+        stored after a later test of its actuator (``--backfill``), so the RULs given at those
+        later tests did not see it."""
         self._require(actuator_id)
-        q = f"SELECT id, {','.join(TEST_COLUMNS)} FROM tests"
+        # the least id among the actuator's later tests (a window over time, latest first): below
+        # the test's own id, a later test was stored first
+        q = (f"SELECT id, {','.join(TEST_COLUMNS)}, COALESCE(MIN(id) OVER (PARTITION BY actuator_id ORDER BY "
+             f"time_h DESC ROWS BETWEEN UNBOUNDED PRECEDING AND 1 PRECEDING) < id, 0) FROM tests")
         args: tuple = ()
         if actuator_id is not None:
             q, args = q + " WHERE actuator_id = ?", (actuator_id,)
         rows = self.conn.execute(q + " ORDER BY actuator_id, time_h", args).fetchall()
         out = []
         for row in rows:
-            d = dict(zip(("id",) + TEST_COLUMNS, row))
+            d = dict(zip(("id",) + TEST_COLUMNS + ("backfilled",), row))
+            d["backfilled"] = bool(d["backfilled"])
             for c in ("fit_rms", "warnings"):
                 d[c] = json.loads(d[c]) if d[c] else None
             out.append(d)
