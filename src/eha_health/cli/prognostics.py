@@ -183,14 +183,9 @@ def cmd_history_export(args) -> int:
     mout = _csv_out(args.maintenance or str(out.with_name(out.stem + "_maintenance.csv")), "MAINTENANCE.csv", db)
     if mout.resolve() == out.resolve():
         raise UsageError(f"{mout}: the tests and the maintenance need two files")
-    with HistoryStore(db, settings, readonly=True) as st:
-        # one snapshot: a repair recorded between the two reads must not come without its test
-        st.conn.execute("BEGIN")
-        try:
-            rows = st.list_tests(args.actuator)
-            maint = st.list_maintenance(args.actuator)
-        finally:
-            st.conn.execute("COMMIT")
+    with HistoryStore(db, settings, readonly=True) as st, st.snapshot():
+        rows = st.list_tests(args.actuator)
+        maint = st.list_maintenance(args.actuator)
     if not rows:
         raise UsageError(f"{db}: the history is empty: nothing to export")
     write_history_csv(out, rows)

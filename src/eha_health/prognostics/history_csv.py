@@ -24,8 +24,8 @@ from pathlib import Path
 from ..physics.faults import FAULT_KEYS
 from ..signals.table import csv_rows
 from .config import PrognosticsError
-from .records import (K_COLUMNS, STD_COLUMNS, HealthRecord, MaintenanceRecord, check_maintenance, check_order,
-                      check_record)
+from .records import (K_COLUMNS, STD_COLUMNS, HealthRecord, MaintenanceRecord, check_maintenance,
+                      check_maintenance_time, check_order, check_record, replacements)
 
 HISTORY_COLUMNS = ("actuator_id", "time_h", *K_COLUMNS, *STD_COLUMNS, "usage")
 MAINTENANCE_COLUMNS = ("actuator_id", "time_h", "fault", "action", "note")
@@ -70,15 +70,6 @@ def read_maintenance_csv(path: str | Path) -> list[MaintenanceRecord]:
     return out
 
 
-def replacements(maintenance: list[MaintenanceRecord] | None) -> dict[str, list[float]]:
-    """Actuator -> the times [h] of its replacements (where a usage count restarts)."""
-    out: dict[str, list[float]] = {}
-    for m in maintenance or ():
-        if m.action == "replace":
-            out.setdefault(m.actuator_id, []).append(m.time_h)
-    return out
-
-
 def read_history_csv(path: str | Path, maintenance: list[MaintenanceRecord] | None = None) -> list[HealthRecord]:
     """Rows of a HISTORY.csv, validated row by row, in time order per actuator; a usage may
     fall only at a replacement in ``maintenance`` (:func:`records.check_order`). A missing std
@@ -111,18 +102,13 @@ def read_history_csv(path: str | Path, maintenance: list[MaintenanceRecord] | No
 
 def check_maintenance_times(tests: list[HealthRecord], maintenance: list[MaintenanceRecord], path: str | Path,
                             maintenance_path: str | Path) -> None:
-    """What the store refuses of a maintenance action, for a HISTORY.csv read with its
-    MAINTENANCE.csv: an actuator without tests, an action after the actuator's latest test."""
+    """What the store refuses of a maintenance action (:func:`records.check_maintenance_time`),
+    for a HISTORY.csv read with its MAINTENANCE.csv."""
     latest: dict[str, float] = {}
     for r in tests:
         latest[r.actuator_id] = max(latest.get(r.actuator_id, r.time_h), r.time_h)
     for i, m in enumerate(maintenance):
-        where = f"{Path(maintenance_path).name} row {i + 1}"
-        if m.actuator_id not in latest:
-            raise PrognosticsError(f"{where}: unknown actuator {m.actuator_id!r}: it has no tests in {path}")
-        if m.time_h > latest[m.actuator_id]:
-            raise PrognosticsError(f"{where}: repair at time_h={m.time_h:g} is in the future: the latest test of "
-                                   f"{m.actuator_id} in {path} is at {latest[m.actuator_id]:g} h")
+        check_maintenance_time(m, latest, f"{Path(maintenance_path).name} row {i + 1}", path)
 
 
 def _cell(v) -> str:

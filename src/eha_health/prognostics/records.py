@@ -218,8 +218,7 @@ def check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = Non
         if r.usage is None:
             continue
         u0 = used.get(r.actuator_id)
-        if u0 is not None and r.usage < u0[0] and not any(
-                u0[1] < t <= r.time_h for t in replaced.get(r.actuator_id, ())):
+        if u0 is not None and r.usage < u0[0] and not replaced_between(replaced, r.actuator_id, u0[1], r.time_h):
             raise PrognosticsError(f"{where}: usage falls: actuator {r.actuator_id} has usage {r.usage:g} at "
                                    f"time_h={r.time_h:g} after {u0[0]:g} at time_h={u0[1]:g} ({u0[2]}); usage "
                                    f"counts up from new (flight hours or cycles; a replaced unit: append its "
@@ -250,3 +249,30 @@ def check_maintenance(m: MaintenanceRecord, where: str) -> None:
         raise PrognosticsError(f"{where}: unknown maintenance action {m.action!r}: choose repair or replace")
     if not isinstance(m.time_h, (int, float)) or not math.isfinite(m.time_h) or m.time_h < 0:
         raise PrognosticsError(f"{where}: repair time_h must be a finite number of hours >= 0, got {m.time_h!r}")
+
+
+def check_maintenance_time(m: MaintenanceRecord, latest: dict[str, float], where: str, source) -> None:
+    """An action of an actuator with tests, not after its latest one (a repair "in the future"):
+    ``latest``, each actuator's latest test time [h] in ``source`` (a store, a HISTORY.csv)."""
+    at = f"{where}: " if where else ""
+    if m.actuator_id not in latest:
+        raise PrognosticsError(f"{at}unknown actuator {m.actuator_id!r}: it has no tests in {source}")
+    if m.time_h > latest[m.actuator_id]:
+        raise PrognosticsError(f"{at}repair at time_h={m.time_h:g} is in the future: the latest test of "
+                               f"{m.actuator_id} is at {latest[m.actuator_id]:g} h (append the post-repair "
+                               f"test first)")
+
+
+def replacements(maintenance: list[MaintenanceRecord] | None) -> dict[str, list[float]]:
+    """Actuator -> the times [h] of its replacements (where a usage count restarts)."""
+    out: dict[str, list[float]] = {}
+    for m in maintenance or ():
+        if m.action == "replace":
+            out.setdefault(m.actuator_id, []).append(m.time_h)
+    return out
+
+
+def replaced_between(replaced: dict[str, list[float]], actuator_id: str, after_h: float, upto_h: float) -> bool:
+    """Whether ``replaced`` (:func:`replacements`) holds a replacement of the actuator in
+    (after_h, upto_h]: a usage count may fall there (the new unit counts from zero)."""
+    return any(after_h < t <= upto_h for t in replaced.get(actuator_id, ()))

@@ -46,9 +46,10 @@ import numpy as np
 from ..physics.faults import FAULT_KEYS, FAULT_UPPER
 from ..signals.channels import MEASURED
 from .config import PrognosticsError, Settings, load_settings
-from .history_csv import check_maintenance_times, read_history_csv, read_maintenance_csv, replacements
+from .history_csv import check_maintenance_times, read_history_csv, read_maintenance_csv
 from .records import (K_COLUMNS, MAINT_FAULTS, STD_COLUMNS, History, HealthRecord, MaintenanceRecord,
-                      check_maintenance, check_order, check_record, history_from_records, now_utc)
+                      check_maintenance, check_maintenance_time, check_order, check_record, history_from_records,
+                      now_utc, replaced_between, replacements)
 
 
 SCHEMA_VERSION = 2
@@ -307,11 +308,14 @@ class HistoryStore:
             else:
                 check_order([(where, r)], self.latest_times() if latest is None else latest)
 
+    def _has_test_at(self, actuator_id: str, time_h: float) -> bool:
+        return self.conn.execute("SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ?",
+                                 (actuator_id, float(time_h))).fetchone() is not None
+
     def _check_free(self, items: list[tuple[str, HealthRecord]]) -> None:
         """No stored test at an item's actuator and time (a back-filled test's own check)."""
         for where, r in items:
-            if self.conn.execute("SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ?",
-                                 (r.actuator_id, r.time_h)).fetchone():
+            if self._has_test_at(r.actuator_id, r.time_h):
                 raise PrognosticsError(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
                                        f"time_h={r.time_h:g} (the history)")
 
@@ -333,8 +337,7 @@ class HistoryStore:
                 "AND time_h >= COALESCE((SELECT MAX(time_h) FROM maintenance WHERE actuator_id = ? "
                 "AND action = 'replace'), -1) ORDER BY time_h DESC LIMIT 1",
                 (r.actuator_id, r.time_h, r.actuator_id)).fetchone()
-            if row is not None and r.usage < row[0] and not any(
-                    row[1] < t <= r.time_h for t in replaced.get(r.actuator_id, ())):
+            if row is not None and r.usage < row[0] and not replaced_between(replaced, r.actuator_id, row[1], r.time_h):
                 notes.append(f"usage falls for actuator {r.actuator_id}: {r.usage:g} at time_h={r.time_h:g} after "
                              f"{row[0]:g} at time_h={row[1]:g} in the history; kept, and the usage rate counts "
                              f"from it. A replaced unit: record it (eha-health history repair --actuator "
@@ -346,8 +349,7 @@ class HistoryStore:
                 "AND NOT EXISTS (SELECT 1 FROM maintenance WHERE actuator_id = ? AND action = 'replace' "
                 "AND time_h > ? AND time_h <= tests.time_h) ORDER BY time_h LIMIT 1",
                 (r.actuator_id, r.time_h, r.actuator_id, r.time_h)).fetchone()
-            if row is not None and r.usage > row[0] and not any(
-                    r.time_h < t <= row[1] for t in replaced.get(r.actuator_id, ())):
+            if row is not None and r.usage > row[0] and not replaced_between(replaced, r.actuator_id, r.time_h, row[1]):
                 notes.append(f"usage falls for actuator {r.actuator_id}: the stored test at time_h={row[1]:g} has "
                              f"{row[0]:g}, below the {r.usage:g} of the test back-filled at time_h={r.time_h:g}; "
                              f"kept: correct the usage if it is a typing error")
@@ -368,10 +370,11 @@ class HistoryStore:
             by.setdefault(r.actuator_id, []).append(float(r.time_h))
         notes = []
         for a, times in sorted(by.items()):
-            new = [t for t in sorted(set(times)) if self.later_tests(a, t) and not self.conn.execute(
-                "SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ?", (a, t)).fetchone()]
+            new = [t for t in sorted(set(times)) if not self._has_test_at(a, t)]
+            later = self.later_tests(a, new[0]) if new else []
+            new = [t for t in new if later and t < later[-1]]      # a stored test after it
             if new:
-                notes.append(backfill_note(a, new, self.later_tests(a, new[0])))
+                notes.append(backfill_note(a, new, later))
         return notes
 
     def _writable(self) -> None:
@@ -511,12 +514,7 @@ class HistoryStore:
         for where, m in items:
             at = f"{where}: " if where else ""
             check_maintenance(m, where or f"{m.action} of {m.fault} on {m.actuator_id}")
-            if m.actuator_id not in latest:
-                raise PrognosticsError(f"{at}unknown actuator {m.actuator_id!r}: it has no tests in {self.path}")
-            if m.time_h > latest[m.actuator_id]:
-                raise PrognosticsError(f"{at}repair at time_h={m.time_h:g} is in the future: the latest test of "
-                                       f"{m.actuator_id} is at {latest[m.actuator_id]:g} h (append the post-repair "
-                                       f"test first)")
+            check_maintenance_time(m, latest, where, self.path)
             row = self.conn.execute("SELECT action FROM maintenance WHERE actuator_id = ? AND time_h = ? AND fault = ?",
                                     (m.actuator_id, float(m.time_h), m.fault)).fetchone()
             if row is not None:
@@ -569,17 +567,23 @@ class HistoryStore:
         cols = ("actuator_id", "time_h", "fault", "action", "wall_time_utc", "note")
         return [dict(zip(cols, r)) for r in self.conn.execute(q + " ORDER BY actuator_id, time_h", args)]
 
-    def history(self) -> History:
-        """All tests and maintenance as arrays for the prognostics, read in one transaction (one
-        snapshot: a writer between the two reads must not give a repair without its test)."""
-        q = f"SELECT actuator_id, time_h, {','.join(K_COLUMNS + STD_COLUMNS)}, usage FROM tests"
+    @contextlib.contextmanager
+    def snapshot(self):
+        """Reads in one transaction: one state of the file (a writer between two reads must not
+        give a repair without its test)."""
         self.conn.execute("BEGIN")      # deferred: the snapshot is taken by the first read
         try:
+            yield
+        finally:
+            self.conn.execute("COMMIT")
+
+    def history(self) -> History:
+        """All tests and maintenance as arrays for the prognostics, in one :meth:`snapshot`."""
+        q = f"SELECT actuator_id, time_h, {','.join(K_COLUMNS + STD_COLUMNS)}, usage FROM tests"
+        with self.snapshot():
             recs = [HealthRecord(a, t, (g, f, b), (sg, sf, sb), usage=u) for a, t, g, f, b, sg, sf, sb, u in
                     self.conn.execute(q)]
             reps = list(self.conn.execute("SELECT actuator_id, time_h, fault, action FROM maintenance"))
-        finally:
-            self.conn.execute("COMMIT")
         return history_from_records(recs, reps, self.settings.history.default_std)
 
 
