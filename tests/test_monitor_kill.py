@@ -37,6 +37,19 @@ def _node(name: str, params: dict, env: dict) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", f"eha_health.ros.{name}", *_ros_args(params)], env=env)
 
 
+def _stop_all(procs: dict) -> None:
+    """SIGINT what still runs, then SIGKILL what has not stopped within 30 s."""
+    for p in procs.values():
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for p in procs.values():
+        try:
+            p.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
 def _log_state(path: Path) -> tuple[int, int]:
     """(diagnoses, command messages) readable in the live log so far."""
     try:
@@ -86,15 +99,7 @@ def test_monitor_killed_mid_window_keeps_its_complete_windows_and_a_restart_diag
                    MONITOR_MAY_EXIT)
         assert procs["monitor"].returncode == 0
     finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.send_signal(signal.SIGINT)
-        for p in procs.values():
-            try:
-                p.wait(timeout=30)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        _stop_all(procs)
     after = recorded_results(second)
     assert len(after) == 1 and after[0]["test_id"] >= 2
     est = np.array([after[0]["diagnosis"][k] for k in ("k_gm", "k_fsj", "k_bkl")])
@@ -107,3 +112,50 @@ def test_monitor_killed_mid_window_keeps_its_complete_windows_and_a_restart_diag
     logged = [results[0]["diagnosis"], after[0]["diagnosis"]]
     for row, d in zip(sorted(rows, key=lambda r: r["time_h"]), logged):
         assert [row[k] for k in ("k_gm", "k_fsj", "k_bkl")] == [d[k] for k in ("k_gm", "k_fsj", "k_bkl")]
+
+
+def test_ctrl_c_during_a_long_prognosis_stops_it_and_keeps_the_diagnosis_in_log_and_history(tmp_path):
+    """SIGINT to the monitor process while its prognosis fits the fleet prior of a 600-actuator
+    history (a young actuator takes it: ~10 s of fitting). The node stops the fit, writes the
+    finished diagnosis into its log and exits 0; the history holds the test once. Until
+    2026-11-29 the shutdown waited for the whole fit and the diagnosis never reached the log
+    (the worker's result was dropped)."""
+    import csv
+    from eha_health.bench.rul import synthetic_history_csv
+    from eha_health.prognostics.store import HistoryStore
+    history, log, err = tmp_path / "history.sqlite", tmp_path / "mon.mcap", tmp_path / "monitor.err"
+    young = tmp_path / "young.csv"
+    with open(young, "w", newline="") as f:       # gm rising 0.02 per 40 h: the fourth test is the monitor's
+        w = csv.writer(f)
+        w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+        for i in range(3):
+            w.writerow(["eha", 40.0 * i, 0.02 * i, 0.0, 0.0, 0.004, 0.002, 0.002])
+    with HistoryStore(history) as st:
+        st.import_csv(synthetic_history_csv(tmp_path / "fleet.csv", 600, n_tests=12, seed=2))
+        st.import_csv(young)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]),
+               ROS_DOMAIN_ID=str(1 + (int(os.environ.get("ROS_DOMAIN_ID", "0")) + 95) % 200))
+    with open(err, "w") as errf:
+        procs = {
+            "plant": _node("plant", {"k_gm": 0.06}, env),
+            "command": _node("command", {"rate": 0.0}, env),
+            "monitor": subprocess.Popen([sys.executable, "-m", "eha_health.ros.monitor", *_ros_args(
+                {"request_tests": 1, "log_path": str(log), "history": str(history), "actuator_id": "eha",
+                 "operating_hours": 120.0, "method": "deterministic"})], env=env, stderr=errf),
+        }
+        try:
+            # the test is appended: the worker has gone on to the prognosis (the fleet prior)
+            wait_until(lambda: len(list_tests(history, "eha")) == 4, 600, "the monitor's test in the history",
+                       procs, MONITOR_MAY_EXIT)
+            procs["monitor"].send_signal(signal.SIGINT)
+            assert procs["monitor"].wait(timeout=600) == 0
+        finally:
+            _stop_all(procs)
+    text = err.read_text()
+    assert "the monitor is stopping" in text, text[-3000:]
+    assert "Traceback" not in text, text[-3000:]
+    results = recorded_results(log)
+    assert [r["test_id"] for r in results] == [1]
+    assert results[0]["diagnosis"]["k_gm"] == pytest.approx(0.06, abs=0.01)
+    rows = list_tests(history, "eha")
+    assert len(rows) == 4 and rows[-1]["time_h"] == 120.0 and rows[-1]["k_gm"] == results[0]["diagnosis"]["k_gm"]

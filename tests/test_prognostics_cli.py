@@ -250,7 +250,7 @@ def test_bench_rul_time_prognose(capsys):
     code, out, _ = run(capsys, ["bench", "rul", "--time-prognose", "6", "--json"])
     obj = json.loads(out)
     assert code == 0 and obj["actuators"] == 6 and obj["series"] == 18 and obj["wall_time_s"] > 0
-    assert obj["monitor_step_refitted"] == 1 and obj["monitor_step_s"] > 0
+    assert obj["monitor_step_refitted"] == 1 and obj["monitor_step_s"] > 0 and obj["fleet_prior_fit_s"] > 0
     code, _, err = run(capsys, ["bench", "rul", "--units", "1"])
     assert code == 2 and "--units" in err
 

@@ -255,3 +255,46 @@ def test_step_on_the_usage_clock(tmp_path, diagnosis_at_500h):
                            params=load("reference").with_effect_names(["sensor_noise"]), seed=7), method="deterministic")
     nousage = step.after_diagnosis(d2, last + 220.0)
     assert nousage.appended and nousage.prognosis is None and "the usage clock needs a usage" in nousage.error
+
+
+def test_a_stopped_step_appends_its_test_and_cuts_the_fleet_prior_fit_short(tmp_path, diagnosis_at_500h, monkeypatch):
+    """The node's shutdown: :meth:`PrognosisStep.stop` from another thread while the step fits the
+    fleet prior of a shared history (a young actuator takes it). The test is appended, the fit ends
+    at its next batch, the outcome says why there is no RUL. Before 2026-11-29 the shutdown waited
+    for the whole fit (about 20 s on 1000 actuators) and the node could be killed mid-way."""
+    import threading
+    from eha_health.bench.rul import synthetic_history_csv
+    from eha_health.prognostics import prior_cache
+    monkeypatch.setattr(prior_cache, "BATCH", 4)
+    db = tmp_path / "h.sqlite"
+    seed_history(db, n=5)       # gm rising from 100 h: a young trend (2 points since its onset)
+    with HistoryStore(db) as st:
+        st.import_csv(synthetic_history_csv(tmp_path / "fleet.csv", 24, n_tests=12, seed=4))
+    step = PrognosisStep(db, "eha", next_check_h=50.0)
+    asked, stopped = threading.Event(), threading.Event()
+    own = step._priors.cancelled
+
+    def ask():                  # the first ask waits until the test has stopped the step
+        asked.set()
+        stopped.wait(300)
+        return own()
+    step._priors.cancelled = ask
+    got = {}
+    worker = threading.Thread(target=lambda: got.update(out=step.after_diagnosis(diagnosis_at_500h[0], 200.0)))
+    worker.start()
+    assert asked.wait(600), "the step never started the fleet prior"
+    step.stop()
+    stopped.set()
+    worker.join(600)
+    out = got["out"]
+    assert out.appended and out.prognosis is None and count(db) == 5 + 24 * 12 + 1
+    assert "fleet prior stopped after 0 of" in out.error and "the monitor is stopping" in out.error
+    assert rul_values(out)["history_error"] == out.error
+    # a step stopped before it runs appends and does not prognose at all
+    later = step.after_diagnosis(diagnosis_at_500h[0], 240.0)
+    assert later.appended and later.prognosis is None and later.error.startswith("prognosis skipped")
+    # the history is whole: a fresh step gives the RUL, with the fleet prior
+    from eha_health.prognostics.rul import prognose
+    fresh = PrognosisStep(db, "eha", next_check_h=50.0).after_diagnosis(diagnosis_at_500h[0], 280.0)
+    assert fresh.appended and fresh.error is None and fresh.prognosis["faults"]["gm"]["rul_median_h"] is not None
+    assert fresh.prognosis == prognose(db, "eha", 50.0)["actuators"]["eha"]

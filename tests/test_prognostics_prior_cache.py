@@ -102,3 +102,41 @@ def test_an_actuator_that_leaves_the_history_leaves_the_prior(tmp_path):
     same(fewer, fleet_priors(hist, s))
     assert all(len(fewer[f].lives) == len(whole[f].lives) - 1 for f in whole)
     assert np.isfinite([fewer[f].mu_log for f in fewer]).all()
+
+
+def test_a_refit_asked_to_stop_leaves_the_cache_as_it_was_and_batches_change_nothing(tmp_path, monkeypatch):
+    from eha_health.prognostics import prior_cache
+    monkeypatch.setattr(prior_cache, "BATCH", 5)       # 24 actuators: 5 batches per fault
+    s = load_settings()
+    csvp = synthetic_history_csv(tmp_path / "h.csv", N, n_tests=12, seed=7)
+    with HistoryStore(tmp_path / "a.db", s) as st:
+        st.import_csv(csvp)
+        hist = st.history()
+    asks = []
+    cache = FleetPriorCache(s, cancelled=lambda: asks.append(1) or len(asks) > 7)
+    with pytest.raises(prior_cache.Cancelled, match="stopped after 34 of 72 actuator-faults"):
+        cache.priors(hist)
+    assert len(asks) == 8 and cache.refitted == 0
+    asks.clear()
+    cache.cancelled = None
+    whole = cache.priors(hist)          # the stopped refit left nothing behind: all 24 refitted
+    assert cache.refitted == N
+    same(whole, fleet_priors(hist, s))  # in batches of 5 or all at once: the same prior to the bit
+
+
+def test_prognose_asks_a_cache_for_the_prior_only_when_a_fault_takes_it(tmp_path):
+    s = load_settings()
+    csvp = synthetic_history_csv(tmp_path / "h.csv", N, n_tests=12, seed=8)
+    with HistoryStore(tmp_path / "a.db", s) as st:
+        st.import_csv(csvp)
+        st.add_tests([HealthRecord("A0005", 10_000.0 + 40.0 * i, (0.03 * i,) * 3, (0.003,) * 3) for i in range(4)])
+        st.record_repair("A0005", "all", 9_990.0)
+        hist = st.history()
+    cache = FleetPriorCache(s)
+    old = prognose(hist, "A0002", settings=s, priors=cache)
+    assert cache.refitted == 0 and not cache._prints      # A0002 has its own 12 tests: no fleet fitted
+    assert old == prognose(hist, "A0002", settings=s)
+    young = prognose(hist, "A0005", settings=s, priors=cache)
+    assert cache.refitted == N
+    assert young["actuators"]["A0005"]["faults"]["gm"].get("fleet_prior") is True
+    assert young == prognose(hist, "A0005", settings=s)

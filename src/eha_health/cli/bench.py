@@ -153,9 +153,10 @@ def bench_rul(args) -> int:
         res = time_prognose(args.time_prognose)
         print(json.dumps(res) if args.json else f"prognose on {res['actuators']} actuators ({res['series']} series): "
               f"{res['wall_time_s']:.1f} s wall, {res['cpu_time_s']:.1f} s CPU (load {res['load_1min_before']:.1f}); "
-              f"the monitor's step on it as a SQLite history: first {res['monitor_first_step_s']:.1f} s, "
-              f"after another actuator's test {res['monitor_step_s']:.2f} s "
-              f"({res['monitor_step_refitted']} actuator refitted)")
+              f"the monitor's step on it as a SQLite history: first {res['monitor_first_step_s']:.2f} s; "
+              f"the fleet prior fitted for a young actuator {res['fleet_prior_fit_s']:.1f} s, then its step "
+              f"after another actuator's test {res['monitor_step_s']:.2f} s ({res['monitor_step_refitted']} "
+              f"actuator refitted)")
         return 0
     if args.units is not None and args.units < 3:
         raise UsageError(f"--units must be >= 3 (one per fault), got {args.units}")

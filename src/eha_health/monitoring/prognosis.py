@@ -6,7 +6,10 @@ diagnosis is appended to the SQLite history (:class:`~eha_health.prognostics.sto
 one transaction; the same recording twice adds no row) with its operating time ``time_h``, the
 ROS / simulated stamp of the window [s] and the wall clock; then
 :func:`~eha_health.prognostics.rul.prognose` for this actuator. The fleet prior (every other
-actuator of the history fitted) is cached until the rest of the fleet gains a test. A bad
+actuator of the history fitted) is fitted only when a fault of this actuator takes it (few points
+since its onset), and is cached until the rest of the fleet gains a test. :meth:`PrognosisStep.stop`
+(the node shutting down) lets a running step end early: the test is still appended, the
+prognosis is skipped or its fleet-prior fit cut short, and the outcome says so. A bad
 append (times out of order, K out of range, an unreadable file) never raises: the outcome says
 what went wrong and the RUL is that of the stored history.
 
@@ -26,7 +29,7 @@ from pathlib import Path
 
 from ..physics.faults import FAULT_KEYS
 from ..prognostics.config import PrognosticsError, Settings, load_settings
-from ..prognostics.prior_cache import FleetPriorCache
+from ..prognostics.prior_cache import Cancelled, FleetPriorCache
 
 #: The F fields of ``prognose --json`` the status carries, and the key they become.
 RUL_FIELDS = ("rul_median_h", "rul_p05_h", "rul_p95_h", "p_fail_next")
@@ -62,8 +65,14 @@ class PrognosisStep:
         if not 0 < self.warn_p_fail <= self.error_p_fail <= 1:
             raise PrognosticsError(f"need 0 < warn_p_fail ({self.warn_p_fail}) <= error_p_fail "
                                    f"({self.error_p_fail}) <= 1")
-        self._priors = FleetPriorCache(self.settings)
+        self._stopping = threading.Event()
+        self._priors = FleetPriorCache(self.settings, cancelled=self._stopping.is_set)
         self._lock = threading.Lock()
+
+    def stop(self) -> None:
+        """From any thread: the running and later steps append their test but skip the prognosis
+        (a fleet-prior fit of ~20 s on 1000 actuators would hold up the node's shutdown)."""
+        self._stopping.set()
 
     def after_diagnosis(self, diagnosis, time_h: float, sim_time_s: float | None = None, response=None,
                         discrepancy: str | None = None, usage: float | None = None) -> Outcome:
@@ -80,11 +89,15 @@ class PrognosisStep:
                                                         discrepancy=discrepancy)
                     except PrognosticsError as e:   # e.g. times out of order: the stored history stays
                         out.error = f"not appended to the history: {e}"
+                    if self._stopping.is_set():
+                        raise Cancelled("prognosis skipped")
                     hist = st.history()
                     if self.actuator_id in hist.actuators:
-                        obj = prognose(hist, self.actuator_id, self.next_check_h, self.settings,
-                                       priors=self._priors.priors(hist))
+                        obj = prognose(hist, self.actuator_id, self.next_check_h, self.settings, priors=self._priors)
                         out.prognosis = obj["actuators"][self.actuator_id]
+            except Cancelled as e:
+                out.error = "; ".join(filter(None, [out.error, f"{e}: the monitor is stopping (`eha-health "
+                                                                 f"prognose` gives the stored history's RUL)"]))
             except (PrognosticsError, sqlite3.Error, OSError) as e:   # an unreadable, locked or full history file
                 out.error = str(e) if isinstance(e, PrognosticsError) else f"history {self.history}: {e}"
             except Exception as e:    # noqa: BLE001 -- the test was diagnosed: a failed prognosis must not

@@ -729,7 +729,9 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
     ``p_fail_next``, ``threshold``, ``n_tests`` (null RUL with a ``reason`` where none can be
     given; overall also ``dominant_fault``). With ``details=True`` returns ``(object,
     {actuator: {fault|'overall': FaultPrediction}})`` for plots. ``priors`` (from
-    :func:`fleet_priors`) with ``actuator``: only that actuator is fitted. Raises :class:`PrognosticsError`.
+    :func:`fleet_priors`, or a :class:`prior_cache.FleetPriorCache`, asked only where a fault of
+    ``actuator`` takes the prior) with ``actuator``: only that actuator is fitted. Raises
+    :class:`PrognosticsError`.
     """
     from .clock import on_usage_clock
     from .store import as_history
@@ -758,14 +760,14 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
             raise PrognosticsError(first if len(refused) == 1 else
                                    f"none of the {len(refused)} actuators can be put on the usage clock; {first}")
     plists = {f: _predict_fault(hist, ids, fi, thr[f], s) for fi, f in enumerate(FAULTS)}
-    if priors is None:
+    if priors is None or hasattr(priors, "on_clock"):
         # fleet prior from the members (enough points), applied to the actuators with few points;
         # one actuator's needs the whole fleet fitted, and only when a fault of it takes the prior
-        if actuator is None:
+        if actuator is None and priors is None:
             priors = {f: _prior_of(ids, plists[f], s) for f in FAULTS}
-        elif any(takes_prior(p, s) for pl in plists.values() for p in pl):
+        elif actuator is None or any(takes_prior(p, s) for pl in plists.values() for p in pl):
             from .prior_cache import FleetPriorCache
-            priors = FleetPriorCache(s, thr).on_clock(hist)
+            priors = (priors or FleetPriorCache(s, thr)).on_clock(hist)
         else:
             priors = {}
     preds: dict[str, dict[str, FaultPrediction]] = {a: {} for a in ids}

@@ -30,6 +30,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from rcl_interfaces.srv import GetParameters
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.serialization import deserialize_message
@@ -117,6 +118,7 @@ class MonitorNode(Node):
         self.log = self._open_log()
         self.windows = WindowTracker()
         self._futures: deque = deque()        # diagnoses running in the worker
+        self._closing = False
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eha-diagnose")
         keep = int(self.get_parameter("keep_verdicts").value)
         self.results: deque[dict] = deque(maxlen=keep or None)   # the latest verdicts, oldest first
@@ -259,8 +261,16 @@ class MonitorNode(Node):
         self._maybe_request_test()
         for w in self.windows.ready(time.monotonic(), float(self.get_parameter("window_timeout_s").value)):
             self._start_diagnosis(w)
+        self._collect()
+
+    def _collect(self) -> None:
+        """Report the diagnoses the worker has finished, in test order."""
         while self._futures and self._futures[0][1].done():
             w, fut = self._futures.popleft()
+            if fut.cancelled():     # the node stopped before it started
+                self.get_logger().warning(f"test {w.id}: not diagnosed, the monitor stopped first "
+                                          f"(its samples are in the log: `eha-health history add` takes it)")
+                continue
             try:
                 d, rep, prog = fut.result()
                 self._report(w, d, None, rep, prog)
@@ -435,7 +445,12 @@ class MonitorNode(Node):
 
     def _publish(self, pub, topic, msg) -> None:
         """Publish, and log what was published (every estimate is in the log)."""
-        pub.publish(msg)
+        try:
+            pub.publish(msg)
+        except RCLError:
+            if not self._closing:
+                raise
+            # Ctrl-C shut the context down before close(): the log still gets what would have gone out
         if self.log is not None:
             self.log.write(self.resolve_topic_name(topic.name), topic.type, msg, time.time_ns())
 
@@ -450,8 +465,16 @@ class MonitorNode(Node):
         return n > 0 and self.verdicts >= n
 
     def close(self) -> None:
-        """Stop the worker and close the log (writes its summary)."""
+        """Stop the worker, report what it finished and close the log (writes its summary).
+
+        A running prognosis ends early (its test is appended; the fleet-prior fit, up to ~20 s on
+        a 1000-actuator history, is cut short); the running diagnosis finishes and goes into the
+        log; windows not yet started are dropped (their samples are in the log)."""
+        if self.prognosis is not None:
+            self.prognosis.stop()
         self._worker.shutdown(wait=True, cancel_futures=True)
+        self._closing = True
+        self._collect()
         if self.log is not None:
             self.log.close()
             self.log = None
