@@ -128,3 +128,20 @@ def test_a_repair_on_the_ground_is_not_merged_away():
     g = prognose(h, settings=USAGE, thresholds=THR)["actuators"]["A"]["faults"]["gm"]
     assert g["n_tests"] == 6
     assert g["rul_median_usage"] == pytest.approx((1.0 - 0.02) / 0.0005 - (u[-1] - u[7]), rel=0.05)
+
+
+def test_after_a_replacement_both_clocks_say_the_same_reason_and_count():
+    """gm wears, then the unit is replaced (all) at 510 h and its faults stay flat: on the usage
+    clock the reason said "no repair recorded" and the overall n_tests counted 6 tests where the
+    time clock counted all 16 (an independent probe, 2026-11-29). Both say the current trend now."""
+    recs = [HealthRecord("D", 50.0 * i, (0.02 + 0.0006 * 50 * i, 0.02, 0.02), (0.005,) * 3, usage=0.8 * 50 * i)
+            for i in range(1, 11)]
+    recs += [HealthRecord("D", 50.0 * i, (0.02, 0.021, 0.02), (0.005,) * 3, usage=0.8 * (50 * i - 520))
+             for i in range(11, 17)]
+    hist = history_from_records(recs, [("D", 510.0, "all", "replace")], 0.002)
+    for clock in ("time", "usage"):
+        s = load_settings(overrides={"prognosis": {"clock": clock}})
+        d = prognose(hist, settings=s)["actuators"]["D"]
+        gm = d["faults"]["gm"]
+        assert gm["n_tests"] == 6 and d["overall"]["n_tests"] == 6, clock
+        assert gm["reason"].startswith("no degradation since the last repair"), (clock, gm["reason"])

@@ -115,6 +115,34 @@ def test_a_jump_that_the_next_tests_confirm_is_wear_and_a_lone_one_on_a_flat_fau
     assert 0.4 <= got["p_fail_next"] <= 0.6 and got["rul_p95_h"] is None     # half: no failure ahead
 
 
+def test_beside_a_fleet_a_lone_jump_on_a_flat_fault_is_still_half_a_failure(tmp_path):
+    """The same flat fault whose last test alone jumps, beside 3 worn actuators: the fleet prior
+    applies (fewer than 6 points since the onset the jump makes). It weighed the whole mixture as
+    one: the half without the last test (no wear, no finite life) got weight 0 and P(failure)
+    went from 0.5 to 1 (an independent probe, 2026-11-29; below the threshold the prior was not
+    applied at all, so the figure jumped with the last K). Each half now keeps its 1/2."""
+    rng = np.random.default_rng(5)
+    t = 50.0 * np.arange(1, 21)
+    rows = []
+    for j in range(3):
+        rows += [[f"M{j}", ti, 0.02 + 0.0004 * (1 + 0.2 * j) * ti + rng.normal(0, 0.005), 0.02, 0.02]
+                 for ti in t]
+    flat = 0.02 + rng.normal(0, 0.005, 20)
+    for last in (1.5, 0.83, 0.817, 0.7):      # the threshold is 0.816
+        k = flat.copy()
+        k[-1] = last
+        p = tmp_path / f"fleet_{last}.csv"
+        with open(p, "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "std_gm", "std_fsj", "std_bkl"])
+            w.writerows([*rows, *[["FLAT", ti, ki, 0.02, 0.02] for ti, ki in zip(t, k)]])
+            # (the std cells not written: estimated from each actuator's own scatter)
+        got = prognose(p, "FLAT", next_check_h=50.0)["actuators"]["FLAT"]["faults"]["gm"]
+        assert got["last_test_off_trend"] is True, last
+        assert got["fleet_prior"] is (last > 0.82), last      # nearer, the prior conflicts with the data
+        assert 0.4 <= got["p_fail_next"] <= 0.6 and got["rul_p95_h"] is None, (last, got)
+
+
 def test_the_test_before_a_last_one_that_jumped_stays_when_it_is_on_the_trend():
     # linear wear, the last test 0.05-0.20 up (an independent probe's case): the test before it,
     # on the line of its predecessors, was set aside in 11 of 40 histories (its cut-short window

@@ -15,7 +15,7 @@ import pytest
 from eha_health.prognostics.config import PrognosticsError, load_settings
 from eha_health.prognostics.history_csv import read_history_csv
 from eha_health.prognostics.records import HealthRecord
-from eha_health.prognostics.store import SCHEMA_VERSION, HistoryStore, as_history
+from eha_health.prognostics.store import SCHEMA_VERSION, HistoryStore, as_history, backfill_note
 from waiting import wait_until
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
@@ -73,8 +73,6 @@ def test_append_list_and_same_recording_twice(tmp_path):
     ([rec(t=10.0), rec(t=20.0, k=(0.1, 1.6, 0.1))], r"k_fsj=1.6 outside \[0, 1.5\]"),
     ([rec(t=10.0), rec(t=20.0, k=(-0.01, 0.1, 0.1))], "outside"),
     ([rec(t=1.0)], "times out of order"),     # before the latest stored test
-    ([rec(t=10.0, usage=50.0), rec(t=20.0, usage=40.0)], "usage falls: actuator A1 has usage 40 at time_h=20 "
-                                                          "after 50 at time_h=10"),
 ])
 def test_bad_batches_leave_the_store_unchanged(tmp_path, bad, message):
     db = tmp_path / "h.sqlite"
@@ -499,6 +497,12 @@ def test_a_test_older_than_the_latest_goes_in_only_with_backfill(tmp_path, capsy
         # a usage above the next stored test's is kept, with a note
         assert "below the 99 of the test back-filled at time_h=25" in " ".join(
             st.usage_notes([rec("A1", 25.0, usage=99.0)]))
+        # ... also where it is not the batch's first usage (only the first was looked at: an
+        # independent probe, 2026-11-29), and a fall within the batch itself
+        assert "below the 99 of the test back-filled at time_h=25" in " ".join(
+            st.usage_notes([rec("A1", 5.0, usage=10.0), rec("A1", 25.0, usage=99.0)]))
+        assert "usage falls for actuator A2: 3 at time_h=60 after 8 at time_h=50; kept" in " ".join(
+            st.usage_notes([rec("A2", 50.0, usage=8.0), rec("A2", 60.0, usage=3.0)]))
     h = as_history(db).actuators["A1"]
     assert h.time_h.tolist() == [0.0, 10.0, 20.0, 30.0, 40.0] and h.since_repair("gm").sum() == 1
     old = tmp_path / "old.csv"
@@ -519,3 +523,20 @@ def test_a_test_older_than_the_latest_goes_in_only_with_backfill(tmp_path, capsy
     assert main(["history", "list", "--history", str(db)]) == 0
     out = capsys.readouterr().out
     assert sum("(back-filled" in line for line in out.splitlines()) == 3
+
+
+def test_a_back_filled_test_is_said_to_change_only_the_tests_before_every_fault_restarts(tmp_path):
+    """A test back-filled at 275 h before an `all` replacement at 575 h: the note named all 15 later
+    tests (300-1000 h), though the tests from 600 h on read only the new unit's (an independent
+    probe, 2026-11-29). One fault repaired alone leaves the others reading it."""
+    db = tmp_path / "h.sqlite"
+    with HistoryStore(db) as st:
+        st.add_tests([rec("R", 50.0 * i) for i in range(1, 21)])
+        st.record_repair("R", "gm", 425.0)
+        assert st.later_tests("R", 275.0) == [50.0 * i for i in range(6, 21)]     # fsj, bkl still read it
+        st.record_repair("R", "all", 575.0, action="replace")
+        assert st.later_tests("R", 275.0) == [300.0, 350.0, 400.0, 450.0, 500.0, 550.0]
+        assert st.later_tests("R", 800.0) == [850.0, 900.0, 950.0, 1000.0]
+        note = st.backfill_notes([rec("R", 275.0)])
+    assert note == [backfill_note("R", [275.0], [300.0, 350.0, 400.0, 450.0, 500.0, 550.0])]
+    assert "6 later stored test(s) (300-550 h)" in note[0]

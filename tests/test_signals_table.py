@@ -62,3 +62,34 @@ def test_a_spreadsheets_byte_order_mark_is_not_part_of_the_first_name(tmp_path):
     p = tmp_path / "t.csv"
     p.write_bytes("a,b\r\n1,x\r\n".encode("utf-8-sig"))
     assert list(csv_rows(p, ("a", "b"), TableError)) == [("t.csv line 2", {"a": "1", "b": "x"})]
+
+
+def test_text_that_is_not_utf8_is_refused_naming_the_line(tmp_path):
+    """Read with replacement characters, 'N\\xe91' and 'N\\xfc1' (cp1252) both became 'N\\ufffd1':
+    two actuators merged into one, silently (an independent probe, 2026-11-29)."""
+    p = tmp_path / "t.csv"
+    p.write_bytes("a,b\nN\xe91,1\nN\xfc1,2\n".encode("cp1252"))
+    with pytest.raises(TableError, match=r"t\.csv line 2: not UTF-8 text \(byte 0xe9\): save it as CSV UTF-8"):
+        list(csv_rows(p, ("a", "b"), TableError))
+    p.write_bytes("a,b\nN\xe91,1\nN\xfc1,2\n".encode("utf-8"))
+    assert [r["a"] for _, r in csv_rows(p, ("a", "b"), TableError)] == ["N\xe91", "N\xfc1"]
+
+
+def test_a_spreadsheets_empty_rows_are_blank_lines(tmp_path):
+    p = tmp_path / "t.csv"
+    p.write_text("a,b,c\n1,2,3\n,,\n , ,\n")
+    assert list(csv_rows(p, ("a", "b"), TableError)) == [("t.csv line 2", {"a": "1", "b": "2", "c": "3"})]
+
+
+def test_a_short_last_line_without_an_end_of_line_is_a_cut_file(tmp_path):
+    """A file cut mid-row after its required cells: the row read with its optional cells missing
+    and its last value cut ('0.004' -> '0.0'), silently (an independent probe, 2026-11-29)."""
+    p = tmp_path / "t.csv"
+    p.write_text("a,b,c,d\n1,2,3,4\n5,6,0.0")
+    with pytest.raises(TableError, match=r"^t\.csv line 3: 3 value\(s\) for 4 columns on the last line, which has "
+                                         r"no end of line: the file looks cut short"):
+        list(csv_rows(p, ("a", "b"), TableError))
+    p.write_text("a,b,c,d\n1,2,3,4\n5,6,0.0\n")          # ended: a hand-written short row
+    assert list(csv_rows(p, ("a", "b"), TableError))[-1][1] == {"a": "5", "b": "6", "c": "0.0", "d": None}
+    p.write_text("a,b,c,d\n1,2,3,4\n5,6,7,8")             # whole, without the final end of line
+    assert len(list(csv_rows(p, ("a", "b"), TableError))) == 2

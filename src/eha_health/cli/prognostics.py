@@ -149,7 +149,8 @@ def cmd_history_import(args) -> int:
     db = _db(args, False, settings)
     # both files read before the store is opened: a bad file creates no store
     maint = read_maintenance_csv(args.maintenance) if args.maintenance else None
-    recs = read_history_csv(args.file, maint)
+    recs = read_history_csv(args.file)
+    _maintenance_beside(args.file, args.maintenance)
     with HistoryStore(db, settings) as st:
         notes = st.usage_notes(recs, maint) + (st.backfill_notes(recs) if args.backfill else [])
         n, m = st.import_files(args.file, args.maintenance, recs, maint, backfill=args.backfill)
@@ -159,6 +160,14 @@ def cmd_history_import(args) -> int:
     extra = f" and {m} maintenance action(s) from {args.maintenance}" if args.maintenance else ""
     print(f"imported {n} new test(s) from {args.file}{extra} into {db} ({total} tests in all)")
     return 0
+
+
+def _maintenance_beside(history_csv, maintenance) -> None:
+    """Say so when ``history export``'s maintenance file lies beside a HISTORY.csv read without it."""
+    beside = Path(history_csv).with_name(Path(history_csv).stem + "_maintenance.csv")
+    if maintenance is None and beside.is_file():
+        print(f"note: {beside} beside it is not read: its repairs and replacements count only with "
+              f"--maintenance {beside}", file=sys.stderr)
 
 
 def _csv_out(path: str, what: str, db: Path) -> Path:
@@ -277,7 +286,12 @@ def cmd_prognose(args) -> int:
     s = _settings(args)
     src = Path(args.history).expanduser() if args.history else default_history_path(s)   # as_history checks it
     _finite(args.next_check_h, "--next-check-h", minimum=1e-12)
-    hist = as_history(src, s, args.maintenance)
+    notes: list[str] = []
+    hist = as_history(src, s, args.maintenance, notes)
+    if src.suffix.lower() == ".csv":
+        _maintenance_beside(src, args.maintenance)
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
     plotted = None
     if args.plot and not Path(args.plot).suffix:
         args.plot += ".png"         # what matplotlib writes; the path said is the path written

@@ -25,7 +25,7 @@ from ..physics.faults import FAULT_KEYS
 from ..signals.table import csv_rows
 from .config import PrognosticsError
 from .records import (K_COLUMNS, STD_COLUMNS, HealthRecord, MaintenanceRecord, check_maintenance,
-                      check_maintenance_time, check_order, check_record, replacements)
+                      check_maintenance_time, check_order, check_record)
 
 HISTORY_COLUMNS = ("actuator_id", "time_h", *K_COLUMNS, *STD_COLUMNS, "usage")
 MAINTENANCE_COLUMNS = ("actuator_id", "time_h", "fault", "action", "note")
@@ -33,12 +33,22 @@ MAINTENANCE_COLUMNS = ("actuator_id", "time_h", "fault", "action", "note")
 
 def _float(text: str, where: str, name: str) -> float:
     try:
-        if "_" in text:     # float() reads "0.0_5" as 0.005: a typing error, not a number
+        # float() reads "0.0_5" as 0.005 and Arabic-Indic or full-width digits as numbers: typing
+        # errors or another locale's text, not the numbers of a CSV
+        if "_" in text or not text.isascii():
             raise ValueError(text)
         v = float(text)
     except (TypeError, ValueError):
         raise PrognosticsError(f"{where}: {name} {text!r} is not a number") from None
     return v
+
+
+def _check_case(path: Path, row: dict, known: tuple[str, ...]) -> None:
+    """A column named as one of ours in other letter case (``Usage``) would be read as absent."""
+    odd = [c for c in row if c and c not in known and c.lower() in known]
+    if odd:
+        raise PrognosticsError(f"{path}: column(s) {', '.join(odd)}: names are case-sensitive; the columns "
+                               f"are {', '.join(known)}")
 
 
 def _existing(path: str | Path, what: str) -> Path:
@@ -57,6 +67,8 @@ def read_maintenance_csv(path: str | Path) -> list[MaintenanceRecord]:
     out, seen = [], {}
     for where, row in csv_rows(path, ("actuator_id", "time_h", "fault"), PrognosticsError,
                                need="a MAINTENANCE.csv"):
+        if not seen:
+            _check_case(path, row, MAINTENANCE_COLUMNS)
         m = MaintenanceRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"),
                               (row["fault"] or "").lower().removeprefix("k_"),
                               row.get("action") or "repair", row.get("note") or None)
@@ -70,11 +82,11 @@ def read_maintenance_csv(path: str | Path) -> list[MaintenanceRecord]:
     return out
 
 
-def read_history_csv(path: str | Path, maintenance: list[MaintenanceRecord] | None = None) -> list[HealthRecord]:
-    """Rows of a HISTORY.csv, validated row by row, in time order per actuator; a usage may
-    fall only at a replacement in ``maintenance`` (:func:`records.check_order`). A missing std
-    stays None: the history fills it when read (:func:`records.fill_missing_std`), and the store
-    keeps it NULL."""
+def read_history_csv(path: str | Path) -> list[HealthRecord]:
+    """Rows of a HISTORY.csv, validated row by row, in time order per actuator
+    (:func:`records.check_order`; a usage that falls is the caller's note,
+    :func:`records.batch_usage_notes`). A missing std stays None: the history fills it when read
+    (:func:`records.fill_missing_std`), and the store keeps it NULL."""
     path = _existing(path, "HISTORY.csv")
     recs = []
     for where, row in csv_rows(path, ("actuator_id", "time_h", *K_COLUMNS), PrognosticsError):
@@ -85,6 +97,7 @@ def read_history_csv(path: str | Path, maintenance: list[MaintenanceRecord] | No
             if odd:
                 raise PrognosticsError(f"{path}: unknown column(s) {', '.join(odd)}: the K and std columns are "
                                        f"{', '.join(K_COLUMNS + STD_COLUMNS)} (case-sensitive)")
+            _check_case(path, row, HISTORY_COLUMNS)
         k = tuple(_float(row[f"k_{n}"], where, f"k_{n}") for n in FAULT_KEYS)
         std = tuple(_float(row[f"std_{n}"], where, f"std_{n}") if row.get(f"std_{n}") not in (None, "")
                     else None for n in FAULT_KEYS)
@@ -96,7 +109,7 @@ def read_history_csv(path: str | Path, maintenance: list[MaintenanceRecord] | No
         recs.append((where, r))
     if not recs:
         raise PrognosticsError(f"{path}: the history is empty (no rows)")
-    check_order(recs, replaced=replacements(maintenance))
+    check_order(recs)
     return [r for _, r in recs]
 
 

@@ -85,10 +85,16 @@ def check_actuator_id(actuator_id, where: str) -> None:
         raise PrognosticsError(f"{where}: actuator id {actuator_id!r} has leading or trailing spaces")
 
 
+#: Largest operating time [h] and usage a record may hold: about 114,000 years of operation. Far
+#: beyond any machine; times near the float limit (1e290 h) overflowed the prognosis.
+MAX_TIME_H = 1.0e9
+MAX_USAGE = 1.0e12
+
+
 def check_record(r: HealthRecord, where: str) -> None:
     check_actuator_id(r.actuator_id, where)
-    if not isinstance(r.time_h, (int, float)) or not math.isfinite(r.time_h) or r.time_h < 0:
-        raise PrognosticsError(f"{where}: time_h must be a finite number of hours >= 0, got {r.time_h!r}")
+    if not isinstance(r.time_h, (int, float)) or not math.isfinite(r.time_h) or not 0 <= r.time_h <= MAX_TIME_H:
+        raise PrognosticsError(f"{where}: time_h must be a number of hours in [0, {MAX_TIME_H:g}], got {r.time_h!r}")
     for name, v in zip(FAULT_KEYS, r.k):
         if not isinstance(v, (int, float)) or not math.isfinite(v) or not 0.0 <= v <= FAULT_UPPER:
             raise PrognosticsError(f"{where}: k_{name}={v!r} outside [0, {FAULT_UPPER}]")
@@ -99,8 +105,8 @@ def check_record(r: HealthRecord, where: str) -> None:
             raise PrognosticsError(f"{where}: std_{name} is {v!r} (standard errors must be finite)")
         if v < 0:
             raise PrognosticsError(f"{where}: std_{name}={v!r} is negative")
-    if r.usage is not None and (not math.isfinite(r.usage) or r.usage < 0):
-        raise PrognosticsError(f"{where}: usage must be a finite number >= 0, got {r.usage!r}")
+    if r.usage is not None and (not math.isfinite(r.usage) or not 0 <= r.usage <= MAX_USAGE):
+        raise PrognosticsError(f"{where}: usage must be a number in [0, {MAX_USAGE:g}], got {r.usage!r}")
 
 
 # ----------------------------------------------------------------------------- in-memory history
@@ -165,7 +171,7 @@ def history_from_records(recs: list[HealthRecord], repairs: list[tuple], floor: 
     h = History()
     for a, rs in by.items():
         rs = sorted(rs, key=lambda r: r.time_h)
-        fill_missing_std(rs, floor)
+        fill_missing_std(rs, floor, [(t, f) for (aa, t, f, _act) in repairs if aa == a])
         h.actuators[a] = ActuatorHistory(
             a, np.array([r.time_h for r in rs], float), np.array([r.k for r in rs], float),
             np.array([r.std for r in rs], float),
@@ -174,32 +180,30 @@ def history_from_records(recs: list[HealthRecord], repairs: list[tuple], floor: 
     return h
 
 
-def fill_missing_std(recs: list[HealthRecord], floor: float) -> None:
+def fill_missing_std(recs: list[HealthRecord], floor: float, repairs=()) -> None:
     """Standard errors not stated, in place: the scatter of the actuator's whole series about a
     smooth trend (:func:`noise_estimate`, 1.4826 MAD of second differences / sqrt(6)), at least
     ``floor`` (``history.default_std``). ``recs``: one actuator's tests in time order. Estimated
-    when read, from every test held -- a test imported alone has no scatter of its own."""
+    when read, from every test held -- a test imported alone has no scatter of its own.
+    ``repairs``: (time_h, fault) of its maintenance; no difference spans one of the fault (5 tests
+    before and 5 after a repair read 0.0204 for a true 0.005: an independent probe, 2026-11-29)."""
+    times = np.array([r.time_h for r in recs], float)
     for i in range(3):
         if all(r.std[i] is not None for r in recs):
             continue
-        est = noise_estimate(np.array([r.k[i] for r in recs], float))
+        starts = np.searchsorted(times, [t for t, f in repairs if f in (FAULT_KEYS[i], "all")], "left")
+        est = noise_estimate(np.array([r.k[i] for r in recs], float), starts)
         fill = max(floor, est) if math.isfinite(est) else floor
         for r in recs:
             if r.std[i] is None:
                 r.std = tuple(fill if j == i else v for j, v in enumerate(r.std))
 
 
-def check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = None,
-                replaced: dict[str, list[float]] | None = None) -> None:
-    """Times must increase strictly per actuator within a batch (and after ``latest``); usage,
-    a count since new (flight hours or cycles), must not fall within a batch unless a
-    replacement in ``replaced`` (actuator -> times [h]; a MAINTENANCE.csv's) lies after the
-    higher count and at or before the lower: the new unit counts from its own zero. (Against the
-    store it may fall: a replaced unit's first test is appended before its replacement is
-    recorded, :meth:`ActuatorHistory.usage_per_hour`.)"""
+def check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = None) -> None:
+    """Times must increase strictly per actuator within a batch (and after ``latest``). A usage
+    that falls is not refused: :func:`usage_fall_notes` says it (a replaced unit's first tests
+    may come before its replacement is known)."""
     last: dict[str, tuple[float, str]] = {}
-    used: dict[str, tuple[float, float, str]] = {}
-    replaced = replaced or {}
     for where, r in items:
         prev = last.get(r.actuator_id)
         if prev is None and latest and r.actuator_id in latest:
@@ -215,16 +219,45 @@ def check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = Non
                 raise PrognosticsError(f"{where}: times out of order: actuator {r.actuator_id} test at "
                                        f"time_h={r.time_h:g} comes after one at {t0:g} ({w0}){hint}")
         last[r.actuator_id] = (r.time_h, where)
-        if r.usage is None:
-            continue
-        u0 = used.get(r.actuator_id)
-        if u0 is not None and r.usage < u0[0] and not replaced_between(replaced, r.actuator_id, u0[1], r.time_h):
-            raise PrognosticsError(f"{where}: usage falls: actuator {r.actuator_id} has usage {r.usage:g} at "
-                                   f"time_h={r.time_h:g} after {u0[0]:g} at time_h={u0[1]:g} ({u0[2]}); usage "
-                                   f"counts up from new (flight hours or cycles; a replaced unit: append its "
-                                   f"tests after `history repair --action replace`, or give the replacement "
-                                   f"in a MAINTENANCE.csv)")
-        used[r.actuator_id] = (r.usage, r.time_h, where)
+
+
+def usage_fall_notes(tests: dict[str, list[tuple[float, float, bool]]], replaced: dict[str, list[float]],
+                     stored: str = "the history") -> list[str]:
+    """One note per actuator whose usage count falls between two consecutive tests that carry
+    one (in time order), where no replacement in ``replaced`` (:func:`replacements`) lies after
+    the higher count and at or before the lower, and one of the two is new.
+
+    ``tests``: actuator -> (time_h [h], usage, new: whether the test is being added; the others
+    are ``stored``'s). A usage counts up from new (flight hours or cycles); it falls at a
+    replacement, whose first tests may be appended before it is recorded, or by a typing error.
+    Such a test is kept either way, and the usage rate counts from the fall
+    (:meth:`ActuatorHistory.usage_per_hour`); the note says which and what to do."""
+    notes = []
+    for a, seq in tests.items():
+        seq = sorted(seq, key=lambda x: x[0])
+        for (t0, u0, new0), (t1, u1, new1) in zip(seq, seq[1:]):
+            if u1 >= u0 or not (new0 or new1) or replaced_between(replaced, a, t0, t1):
+                continue
+            if new1:
+                notes.append(f"usage falls for actuator {a}: {u1:g} at time_h={t1:g} after {u0:g} at time_h={t0:g}"
+                             f"{'' if new0 else f' in {stored}'}; kept, and the usage rate counts from it. A "
+                             f"replaced unit: record it (eha-health history repair --actuator {a} --fault all "
+                             f"--action replace --time-h T) or give it in a MAINTENANCE.csv; else correct the usage")
+            else:
+                notes.append(f"usage falls for actuator {a}: the stored test at time_h={t1:g} has {u1:g}, below the "
+                             f"{u0:g} of the test back-filled at time_h={t0:g}; kept: correct the usage if it is "
+                             f"a typing error")
+            break
+    return notes
+
+
+def batch_usage_notes(records: list[HealthRecord], maintenance: list | None = None) -> list[str]:
+    """:func:`usage_fall_notes` of a batch read alone (a HISTORY.csv with its MAINTENANCE.csv)."""
+    tests: dict[str, list] = {}
+    for r in records:
+        if r.usage is not None:
+            tests.setdefault(r.actuator_id, []).append((r.time_h, r.usage, True))
+    return usage_fall_notes(tests, replacements(maintenance))
 
 
 @dataclass
@@ -247,8 +280,9 @@ def check_maintenance(m: MaintenanceRecord, where: str) -> None:
         raise PrognosticsError(f"{where}: unknown fault {m.fault!r}: choose gm, fsj, bkl or all")
     if m.action not in ACTIONS:
         raise PrognosticsError(f"{where}: unknown maintenance action {m.action!r}: choose repair or replace")
-    if not isinstance(m.time_h, (int, float)) or not math.isfinite(m.time_h) or m.time_h < 0:
-        raise PrognosticsError(f"{where}: repair time_h must be a finite number of hours >= 0, got {m.time_h!r}")
+    if not isinstance(m.time_h, (int, float)) or not math.isfinite(m.time_h) or not 0 <= m.time_h <= MAX_TIME_H:
+        raise PrognosticsError(f"{where}: repair time_h must be a number of hours in [0, {MAX_TIME_H:g}], "
+                               f"got {m.time_h!r}")
 
 
 def check_maintenance_time(m: MaintenanceRecord, latest: dict[str, float], where: str, source) -> None:

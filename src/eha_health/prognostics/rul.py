@@ -56,6 +56,7 @@ from .config import PrognosticsError, Settings, load_settings
 from .degradation import (ModelFit, Series, akaike_weights, degradation_segment, fit_models, rise_onset,
                           shape_g, shape_g_inv)
 from .scatter import isolated_outliers, last_persistent_fall, noise_estimate
+from .records import trend_start_h
 from .thresholds import FAULTS, threshold_values
 
 if TYPE_CHECKING:
@@ -255,6 +256,7 @@ class FaultPrediction:
     no_trend: bool = False                            # no degradation since the repair: no failure ahead
     last_off_trend: bool = False                      # the last test is off the trend (unconfirmed) ...
     without_last: "FaultPrediction | None" = None     # ... and the prediction without it
+    mixed_without: np.ndarray | None = None           # samples drawn from without_last (the even mixture)
     reason: str | None = None
     series: Series | None = None          # since the onset anchor (n_points, fleet life)
     candidates: list | None = None        # Series of every onset candidate (all post-repair points)
@@ -565,7 +567,8 @@ def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_i
             without = np.full(len(p.samples), np.inf)     # without the last test, no wear: no failure ahead
         if p.samples is not None and without is not None and len(p.samples) == len(without) == len(u_last):
             # an even mixture: with the last test (wear jumped) or without it (a failed diagnosis)
-            p.samples = np.where(u_last < 0.5, without, p.samples)
+            p.mixed_without = u_last < 0.5
+            p.samples = np.where(p.mixed_without, without, p.samples)
             p.horizon_h = min(p.horizon_h, a.horizon_h)
             if p.raw_samples is not None:
                 p.raw_samples = np.where(u_last < 0.5, without if a.raw_samples is None else a.raw_samples,
@@ -639,6 +642,13 @@ def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings,
     tau = float(p.series.tau_h[-1])
     base = p.raw_samples if p.raw_samples is not None else p.samples
     w = prior_weights(base[None, :], np.array([tau]), prior)[0]
+    if p.mixed_without is not None:
+        # the even mixture with and without an unconfirmed last test: the prior weighs the lives
+        # within each future and each keeps its half (weighed as one, the "no wear without it"
+        # half has no finite life and vanished: P(failure) 0.5 became 1 beside a fleet)
+        for half in (p.mixed_without, ~p.mixed_without):
+            tot = w[half].sum()
+            w[half] = w[half] * (half.sum() / tot) if tot > 0 else 1.0
     ess = w.sum() ** 2 / max(np.sum(w * w), 1e-300) if w.sum() > 0 else 0.0
     if ess >= 50:
         # the horizon reaches the prior's 99.9 % life (beyond it, samples count as later)
@@ -682,8 +692,10 @@ def _predict_fault(hist, ids: list[str], fi: int, thr: float, s: Settings) -> li
     for a in ids:
         h = hist.actuators[a]
         since = h.since_repair(f)
+        # a maintenance at or before the first test also restarts it (the usage clock's history
+        # starts at the new unit's first test: "no repair recorded" was said of a replaced unit)
         p, _ = prepare_fault(h.time_h[since], h.k[since, fi], h.std[since, fi], thr, int(since.sum()), s,
-                             repaired=not since.all())
+                             repaired=not since.all() or trend_start_h(h.repairs, f) is not None)
         plist.append(p)
     predict_series(plist, np.full(len(plist), thr), fi, s)
     return plist
@@ -786,10 +798,13 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
         rate = clocks[a].rate if a in clocks else h.usage_per_hour()
         faults = {f: summary(preds[a][f], nc, rate, clocks.get(a)) for f in FAULTS}
         groups = shared_wear(preds[a], s)
-        ov = overall(preds[a], len(h.time_h), groups)
+        # the tests the overall rests on: the longest current trend of a fault (a test before a
+        # repair of every fault counts for none; the same on both clocks)
+        n_ov = max(p.n_tests for p in preds[a].values())
+        ov = overall(preds[a], n_ov, groups)
         if a in clocks and ov.samples is not None:     # the first fault to use its usage up
             ovu = overall({f: dataclasses.replace(p, samples=p.usage_samples) for f, p in preds[a].items()},
-                          len(h.time_h), groups)
+                          n_ov, groups)
             ov.usage_samples, ov.usage_weights, ov.usage_p95_shared = ovu.samples, ovu.weights, ovu.p95_shared
         o = summary(ov, nc, rate, clocks.get(a))
         o["dominant_fault"] = getattr(ov, "dominant", None)

@@ -33,13 +33,16 @@ from numpy.lib.stride_tricks import sliding_window_view
 MIN_TESTS = 8
 
 
-def noise_estimate(k: np.ndarray) -> float:
+def noise_estimate(k: np.ndarray, starts=()) -> float:
     """1-sd of the scatter of a series about a smooth trend [units of k]: 1.4826 MAD(second
-    differences) / sqrt(6); NaN with fewer than 5 points."""
+    differences) / sqrt(6); NaN with fewer than 3 second differences (5 points). ``starts``:
+    indices where a new trend begins (a repair): no difference spans one, so a repair's fall is
+    not read as scatter."""
     k = np.asarray(k, float)
-    if len(k) < 5:
+    cuts = sorted({int(i) for i in starts if 0 < int(i) < len(k)})
+    d2 = np.concatenate([np.diff(seg, 2) for seg in np.split(k, cuts) if len(seg) >= 3] or [np.empty(0)])
+    if len(d2) < 3:
         return float("nan")
-    d2 = np.diff(k, 2)
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
 
 

@@ -36,6 +36,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import math
 import os
 import sqlite3
 import time
@@ -49,7 +50,7 @@ from .config import PrognosticsError, Settings, load_settings
 from .history_csv import check_maintenance_times, read_history_csv, read_maintenance_csv
 from .records import (K_COLUMNS, MAINT_FAULTS, STD_COLUMNS, History, HealthRecord, MaintenanceRecord,
                       check_maintenance, check_maintenance_time, check_order, check_record, history_from_records,
-                      now_utc, replaced_between, replacements)
+                      now_utc, replacements, usage_fall_notes, batch_usage_notes)
 
 
 SCHEMA_VERSION = 2
@@ -320,45 +321,35 @@ class HistoryStore:
                                        f"time_h={r.time_h:g} (the history)")
 
     def usage_notes(self, records: list[HealthRecord], maintenance: list[MaintenanceRecord] | None = None) -> list[str]:
-        """Notes for records whose usage is below the actuator's last stored one (since its last
-        replacement): kept -- a replaced unit's first test may come before its replacement is
-        recorded -- but a usage count falls only then, or by a typing error (the usage rate counts
-        from the fall, :meth:`ActuatorHistory.usage_per_hour`). One note per actuator, its first
-        such record. ``maintenance``: actions coming with the records (a MAINTENANCE.csv), whose
-        replacements explain a fall as the stored ones do."""
-        notes, seen = [], set()
+        """Notes for records whose usage count falls against the test before them, or below which
+        the test after them falls, stored tests and ``records`` together in time order, where no
+        replacement (stored, or in ``maintenance``: a MAINTENANCE.csv coming with the records)
+        lies between (:func:`records.usage_fall_notes`; one note per actuator). Kept -- a replaced
+        unit's first tests may come before its replacement is recorded -- but a usage count falls
+        only then, or by a typing error (the usage rate counts from the fall,
+        :meth:`ActuatorHistory.usage_per_hour`). Records the store holds already are not new."""
         replaced = replacements(maintenance)
-        for r in sorted((r for r in records if r.usage is not None), key=lambda r: r.time_h):
-            if r.actuator_id in seen:
-                continue
-            seen.add(r.actuator_id)
-            row = self.conn.execute(
-                "SELECT usage, time_h FROM tests WHERE actuator_id = ? AND usage IS NOT NULL AND time_h < ? "
-                "AND time_h >= COALESCE((SELECT MAX(time_h) FROM maintenance WHERE actuator_id = ? "
-                "AND action = 'replace'), -1) ORDER BY time_h DESC LIMIT 1",
-                (r.actuator_id, r.time_h, r.actuator_id)).fetchone()
-            if row is not None and r.usage < row[0] and not replaced_between(replaced, r.actuator_id, row[1], r.time_h):
-                notes.append(f"usage falls for actuator {r.actuator_id}: {r.usage:g} at time_h={r.time_h:g} after "
-                             f"{row[0]:g} at time_h={row[1]:g} in the history; kept, and the usage rate counts "
-                             f"from it. A replaced unit: record it (eha-health history repair --actuator "
-                             f"{r.actuator_id} --fault all --action replace --time-h T); else correct the usage")
-                continue
-            # a back-filled test: the usage of the stored test after it must not fall below its own
-            row = self.conn.execute(
-                "SELECT usage, time_h FROM tests WHERE actuator_id = ? AND usage IS NOT NULL AND time_h > ? "
-                "AND NOT EXISTS (SELECT 1 FROM maintenance WHERE actuator_id = ? AND action = 'replace' "
-                "AND time_h > ? AND time_h <= tests.time_h) ORDER BY time_h LIMIT 1",
-                (r.actuator_id, r.time_h, r.actuator_id, r.time_h)).fetchone()
-            if row is not None and r.usage > row[0] and not replaced_between(replaced, r.actuator_id, r.time_h, row[1]):
-                notes.append(f"usage falls for actuator {r.actuator_id}: the stored test at time_h={row[1]:g} has "
-                             f"{row[0]:g}, below the {r.usage:g} of the test back-filled at time_h={r.time_h:g}; "
-                             f"kept: correct the usage if it is a typing error")
-        return notes
+        tests: dict[str, list] = {}
+        for r in records:
+            if r.usage is not None and not self._has_test_at(r.actuator_id, r.time_h):
+                tests.setdefault(r.actuator_id, []).append((r.time_h, r.usage, True))
+        for a, seq in tests.items():
+            seq += [(t, u, False) for t, u in self.conn.execute(
+                "SELECT time_h, usage FROM tests WHERE actuator_id = ? AND usage IS NOT NULL", (a,))]
+            replaced.setdefault(a, []).extend(t for (t,) in self.conn.execute(
+                "SELECT time_h FROM maintenance WHERE actuator_id = ? AND action = 'replace'", (a,)))
+        return usage_fall_notes(tests, replaced)
 
     def later_tests(self, actuator_id: str, time_h: float) -> list[float]:
-        """Times [h] of the actuator's stored tests after ``time_h``, in order."""
-        return [t for (t,) in self.conn.execute("SELECT time_h FROM tests WHERE actuator_id = ? AND time_h > ? "
-                                                "ORDER BY time_h", (actuator_id, float(time_h)))]
+        """Times [h] of the actuator's stored tests after ``time_h`` whose prognosis reads a test at
+        ``time_h``, in order: those before every fault has had a maintenance after it (a test after
+        an ``all`` replacement does not read the old unit's tests)."""
+        t = float(time_h)
+        ends = [self.conn.execute("SELECT MIN(time_h) FROM maintenance WHERE actuator_id = ? AND time_h > ? "
+                                  "AND fault IN (?, 'all')", (actuator_id, t, f)).fetchone()[0] for f in FAULT_KEYS]
+        end = math.inf if None in ends else max(ends)
+        return [u for (u,) in self.conn.execute("SELECT time_h FROM tests WHERE actuator_id = ? AND time_h > ? "
+                                                "ORDER BY time_h", (actuator_id, t)) if u < end]
 
     def backfill_notes(self, records: list[HealthRecord]) -> list[str]:
         """Notes for records that go in before later stored tests of their actuator (``--backfill``)
@@ -410,9 +401,8 @@ class HistoryStore:
             r.source_hash = r.source_hash or r.content_hash()
         return list(zip(wheres, records))
 
-    def _insert_tests(self, items: list[tuple[str, HealthRecord]], backfill: bool,
-                      replaced: dict[str, list[float]] | None = None) -> int:
-        """:meth:`add_tests` inside a write transaction; ``replaced``: :func:`records.check_order`."""
+    def _insert_tests(self, items: list[tuple[str, HealthRecord]], backfill: bool) -> int:
+        """:meth:`add_tests` inside a write transaction."""
         known = {}
         hashes = [r.source_hash for _, r in items]
         for i in range(0, len(hashes), 500):
@@ -431,10 +421,10 @@ class HistoryStore:
             seen.add(r.source_hash)
             new.append((w, r))
         if backfill:
-            check_order(new, replaced=replaced)
+            check_order(new)
             self._check_free(new)
         else:
-            check_order(new, self.latest_times(), replaced)
+            check_order(new, self.latest_times())
         q = f"INSERT INTO tests ({','.join(TEST_COLUMNS)}) VALUES ({','.join('?' * len(TEST_COLUMNS))})"
         self.conn.executemany(q, [r.row() for _, r in new])
         return len(new)
@@ -487,11 +477,11 @@ class HistoryStore:
         self._writable()
         if maintenance is None and maintenance_path is not None:
             maintenance = read_maintenance_csv(maintenance_path)
-        recs = read_history_csv(path, maintenance) if records is None else records
+        recs = read_history_csv(path) if records is None else records
         items = self._prepare(recs, [f"{Path(path).name} row {i + 1}" for i in range(len(recs))])
         mname = Path(maintenance_path).name if maintenance_path is not None else "maintenance"
         with self._immediate():
-            n = self._insert_tests(items, backfill, replacements(maintenance))
+            n = self._insert_tests(items, backfill)
             m = self._insert_maintenance([(f"{mname} row {i + 1}", r) for i, r in enumerate(maintenance or [])],
                                          same_ok=True)
         return n, m
@@ -601,10 +591,12 @@ def _busy(e: sqlite3.OperationalError) -> bool:
     return (getattr(e, "sqlite_errorcode", 0) & 0xFF) in (sqlite3.SQLITE_BUSY, sqlite3.SQLITE_LOCKED)
 
 
-def as_history(obj, settings: Settings | None = None, maintenance: str | Path | None = None) -> History:
+def as_history(obj, settings: Settings | None = None, maintenance: str | Path | None = None,
+               notes: list[str] | None = None) -> History:
     """A :class:`History` from a History, a HistoryStore, or a path (``.csv``: HISTORY.csv, else
     SQLite). ``maintenance``: the MAINTENANCE.csv of a HISTORY.csv (:mod:`.history_csv`); a
-    SQLite history holds its own."""
+    SQLite history holds its own. ``notes``: gets what a HISTORY.csv read says (a usage count
+    that falls, :func:`records.batch_usage_notes`)."""
     if isinstance(obj, History):
         return obj
     if isinstance(obj, HistoryStore):
@@ -617,8 +609,10 @@ def as_history(obj, settings: Settings | None = None, maintenance: str | Path | 
     if path.suffix.lower() == ".csv":
         s = settings or load_settings()
         maint = read_maintenance_csv(maintenance) if maintenance is not None else []
-        recs = read_history_csv(path, maint)
+        recs = read_history_csv(path)
         check_maintenance_times(recs, maint, path, maintenance)
+        if notes is not None:
+            notes += batch_usage_notes(recs, maint)
         return history_from_records(recs, [(m.actuator_id, m.time_h, m.fault, m.action) for m in maint],
                                     s.history.default_std)
     if maintenance is not None:

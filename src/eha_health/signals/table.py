@@ -4,10 +4,14 @@ Header names and cell values are stripped of surrounding blanks; a missing requi
 row with more values than the header, raises the caller's error class with a message that names
 the file and, for a row, its line (``NAME line N``, the header being line 1), so a user can find
 the cell. Checking the values is the caller's business: it gets ``(where, row)`` pairs.
+
+The text must be UTF-8 (a byte-order mark allowed): read with replacement characters, two ids
+that differ only in a Latin-1 letter (``Ne1`` / ``Nu1`` with accents) became one actuator.
 """
 from __future__ import annotations
 
 import csv
+import io
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,13 +22,24 @@ def csv_rows(path: str | Path, required: tuple[str, ...], error: type[Exception]
 
     ``error`` is raised for a missing required column (``need``, when given, is added to the
     message in brackets: what the file is for), a name twice in the header, a row with more
-    values than columns, or a row cut short before a required column (a short row's optional
-    cells are None). The file must exist (the callers say what it should have been).
+    values than columns, a row cut short before a required column (a short row's optional
+    cells are None), a short last line without an end of line (a truncated file), or text that
+    is not UTF-8. Rows of empty cells are skipped, as blank lines are. The file must exist (the
+    callers say what it should have been).
     """
     path = Path(path)
-    # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark, which would otherwise
-    # become part of the first column's name
-    with path.open(newline="", encoding="utf-8-sig", errors="replace") as f:
+    data = path.read_bytes()
+    try:
+        # utf-8-sig: a spreadsheet's "CSV UTF-8" starts with a byte-order mark, which would otherwise
+        # become part of the first column's name
+        text = data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        line = data[:e.start].count(b"\n") + 1
+        raise error(f"{path} line {line}: not UTF-8 text (byte 0x{data[e.start]:02x}): save it as "
+                    f"CSV UTF-8 (names with accents would be misread)") from None
+    last_line = text.count("\n") + (0 if text.endswith(("\n", "\r")) else 1)
+    cut = not text.endswith(("\n", "\r"))      # no end of line after the last row: maybe a truncated file
+    with io.StringIO(text, newline="") as f:
         reader = csv.DictReader(f)
         cols = [c.strip() for c in reader.fieldnames or []]
         twice = sorted({c for c in cols if cols.count(c) > 1 and c})
@@ -41,8 +56,15 @@ def csv_rows(path: str | Path, required: tuple[str, ...], error: type[Exception]
             where = f"{path.name} line {reader.line_num}"
             if None in row:
                 raise error(f"{where}: more values than columns")
+            if all(v is None or not v.strip() for v in row.values()):
+                continue        # a spreadsheet's empty row (,,,,): a blank line
+            n = sum(v is not None for v in row.values())
             short = [c for c in required if row.get(c) is None]
             if short:   # a row cut short (a truncated file): its required cells are missing, not empty
-                n = sum(v is not None for v in row.values())
                 raise error(f"{where}: {n} value(s) for {len(cols)} columns: no {', '.join(short)}")
+            if n < len(cols) and cut and reader.line_num == last_line:
+                # a short row elsewhere is a hand-written one; the last, with no end of line, was cut
+                raise error(f"{where}: {n} value(s) for {len(cols)} columns on the last line, which has no "
+                            f"end of line: the file looks cut short (write empty cells as ,, where a value is "
+                            f"not stated)")
             yield where, {k: (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
