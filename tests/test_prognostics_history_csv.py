@@ -256,3 +256,15 @@ def test_errors_not_stated_are_estimated_within_each_trend(tmp_path):
     assert np.all(std == std[0]) and 0.0025 <= std[0] <= 0.01, std[0]
     assert std[0] == noise_estimate(k, [5]) != noise_estimate(k)     # no difference spans the repair
     assert as_history(h).actuators["A"].std[0, 0] == noise_estimate(k)  # without it: one trend
+
+
+def test_a_row_the_store_refuses_is_named_by_its_line_as_the_files_own_checks_name_it(tmp_path, capsys):
+    """The store's checks said "FILE row N" (the N-th record), the file's "line N" for the same row
+    (an independent probe, 2026-11-29); with a blank line the two numbers differed by two."""
+    db = tmp_path / "h.sqlite"
+    with HistoryStore(db) as st:
+        st.add_tests([HealthRecord("A", 10.0, (0.1, 0, 0), (0.01,) * 3)])
+    h = tmp_path / "h.csv"
+    h.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl\nB,0,0.1,0,0\n\nA,5,0.1,0,0\n")
+    code, _, err = run(capsys, ["history", "import", str(h), "--history", str(db)])
+    assert code == 2 and "h.csv line 4: times out of order: actuator A test at time_h=5" in err, err

@@ -105,7 +105,7 @@ def read_history_csv(path: str | Path) -> list[HealthRecord]:
         r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k, std,
                          usage=usage, method="import")
         check_record(r, where)
-        r.source_path = str(path)
+        r.source_path, r.where = str(path), where
         recs.append((where, r))
     if not recs:
         raise PrognosticsError(f"{path}: the history is empty (no rows)")

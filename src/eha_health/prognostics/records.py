@@ -59,6 +59,7 @@ class HealthRecord:
     source_hash: str | None = None
     wall_time_utc: str | None = None
     software_version: str | None = None
+    where: str | None = field(default=None, compare=False, repr=False)   # its place in a file (messages only)
 
     def content_hash(self) -> str:
         """Hash of the diagnosis inputs when there is no recording file."""
@@ -221,14 +222,13 @@ def check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = Non
         last[r.actuator_id] = (r.time_h, where)
 
 
-def usage_fall_notes(tests: dict[str, list[tuple[float, float, bool]]], replaced: dict[str, list[float]],
-                     stored: str = "the history") -> list[str]:
+def usage_fall_notes(tests: dict[str, list[tuple[float, float, bool]]], replaced: dict[str, list[float]]) -> list[str]:
     """One note per actuator whose usage count falls between two consecutive tests that carry
     one (in time order), where no replacement in ``replaced`` (:func:`replacements`) lies after
     the higher count and at or before the lower, and one of the two is new.
 
     ``tests``: actuator -> (time_h [h], usage, new: whether the test is being added; the others
-    are ``stored``'s). A usage counts up from new (flight hours or cycles); it falls at a
+    are stored). A usage counts up from new (flight hours or cycles); it falls at a
     replacement, whose first tests may be appended before it is recorded, or by a typing error.
     Such a test is kept either way, and the usage rate counts from the fall
     (:meth:`ActuatorHistory.usage_per_hour`); the note says which and what to do."""
@@ -240,7 +240,7 @@ def usage_fall_notes(tests: dict[str, list[tuple[float, float, bool]]], replaced
                 continue
             if new1:
                 notes.append(f"usage falls for actuator {a}: {u1:g} at time_h={t1:g} after {u0:g} at time_h={t0:g}"
-                             f"{'' if new0 else f' in {stored}'}; kept, and the usage rate counts from it. A "
+                             f"{'' if new0 else ' in the history'}; kept, and the usage rate counts from it. A "
                              f"replaced unit: record it (eha-health history repair --actuator {a} --fault all "
                              f"--action replace --time-h T) or give it in a MAINTENANCE.csv; else correct the usage")
             else:

@@ -394,7 +394,7 @@ class HistoryStore:
 
     @staticmethod
     def _prepare(records: list[HealthRecord], wheres: list[str] | None) -> list[tuple[str, HealthRecord]]:
-        wheres = wheres or [f"test {i + 1} (actuator {r.actuator_id}, time_h={r.time_h})"
+        wheres = wheres or [r.where or f"test {i + 1} (actuator {r.actuator_id}, time_h={r.time_h})"
                             for i, r in enumerate(records)]
         for w, r in zip(wheres, records):
             check_record(r, w)
@@ -478,7 +478,7 @@ class HistoryStore:
         if maintenance is None and maintenance_path is not None:
             maintenance = read_maintenance_csv(maintenance_path)
         recs = read_history_csv(path) if records is None else records
-        items = self._prepare(recs, [f"{Path(path).name} row {i + 1}" for i in range(len(recs))])
+        items = self._prepare(recs, [r.where or f"{Path(path).name} row {i + 1}" for i, r in enumerate(recs)])
         mname = Path(maintenance_path).name if maintenance_path is not None else "maintenance"
         with self._immediate():
             n = self._insert_tests(items, backfill)
