@@ -159,3 +159,6 @@ def test_ctrl_c_during_a_long_prognosis_stops_it_and_keeps_the_diagnosis_in_log_
     assert results[0]["diagnosis"]["k_gm"] == pytest.approx(0.06, abs=0.01)
     rows = list_tests(history, "eha")
     assert len(rows) == 4 and rows[-1]["time_h"] == 120.0 and rows[-1]["k_gm"] == results[0]["diagnosis"]["k_gm"]
+    # the status it could no longer publish (Ctrl-C shut the context down) is in the log
+    said = [st.message for m in read_bag(log, topics=["/diagnostics"]).messages.get("/diagnostics", []) for st in m.status]
+    assert any("the monitor is stopping" in x for x in said), said
