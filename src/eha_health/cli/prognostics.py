@@ -164,7 +164,8 @@ def cmd_history_import(args) -> int:
 
 def _maintenance_beside(history_csv, maintenance) -> None:
     """Say so when ``history export``'s maintenance file lies beside a HISTORY.csv read without it."""
-    beside = Path(history_csv).with_name(Path(history_csv).stem + "_maintenance.csv")
+    from ..prognostics.history_csv import maintenance_beside
+    beside = maintenance_beside(history_csv)
     if maintenance is None and beside.is_file():
         print(f"note: {beside} beside it is not read: its repairs and replacements count only with "
               f"--maintenance {beside}", file=sys.stderr)
@@ -184,12 +185,12 @@ def _csv_out(path: str, what: str, db: Path) -> Path:
 
 
 def cmd_history_export(args) -> int:
-    from ..prognostics.history_csv import write_history_csv, write_maintenance_csv
+    from ..prognostics.history_csv import maintenance_beside, write_history_csv, write_maintenance_csv
     from ..prognostics.store import HistoryStore
     settings = _settings(args)
     db = _db(args, True, settings)
     out = _csv_out(args.file, "HISTORY.csv", db)
-    mout = _csv_out(args.maintenance or str(out.with_name(out.stem + "_maintenance.csv")), "MAINTENANCE.csv", db)
+    mout = _csv_out(args.maintenance or str(maintenance_beside(out)), "MAINTENANCE.csv", db)
     if mout.resolve() == out.resolve():
         raise UsageError(f"{mout}: the tests and the maintenance need two files")
     with HistoryStore(db, settings, readonly=True) as st, st.snapshot():

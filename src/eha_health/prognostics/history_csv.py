@@ -43,6 +43,13 @@ def _float(text: str, where: str, name: str) -> float:
     return v
 
 
+def maintenance_beside(history_csv: str | Path) -> Path:
+    """Where ``history export`` writes the MAINTENANCE.csv of a HISTORY.csv by default: beside it,
+    ``NAME_maintenance.csv``."""
+    history_csv = Path(history_csv)
+    return history_csv.with_name(history_csv.stem + "_maintenance.csv")
+
+
 def _check_case(path: Path, row: dict, known: tuple[str, ...]) -> None:
     """A column named as one of ours in other letter case (``Usage``) would be read as absent."""
     odd = [c for c in row if c and c not in known and c.lower() in known]

@@ -571,7 +571,7 @@ def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_i
             p.samples = np.where(p.mixed_without, without, p.samples)
             p.horizon_h = min(p.horizon_h, a.horizon_h)
             if p.raw_samples is not None:
-                p.raw_samples = np.where(u_last < 0.5, without if a.raw_samples is None else a.raw_samples,
+                p.raw_samples = np.where(p.mixed_without, without if a.raw_samples is None else a.raw_samples,
                                          p.raw_samples)
 
 

@@ -329,13 +329,16 @@ class HistoryStore:
         only then, or by a typing error (the usage rate counts from the fall,
         :meth:`ActuatorHistory.usage_per_hour`). Records the store holds already are not new."""
         replaced = replacements(maintenance)
-        tests: dict[str, list] = {}
+        new: dict[str, list] = {}
         for r in records:
-            if r.usage is not None and not self._has_test_at(r.actuator_id, r.time_h):
-                tests.setdefault(r.actuator_id, []).append((r.time_h, r.usage, True))
-        for a, seq in tests.items():
-            seq += [(t, u, False) for t, u in self.conn.execute(
-                "SELECT time_h, usage FROM tests WHERE actuator_id = ? AND usage IS NOT NULL", (a,))]
+            if r.usage is not None:
+                new.setdefault(r.actuator_id, []).append((r.time_h, r.usage, True))
+        tests: dict[str, list] = {}
+        for a, batch in new.items():
+            # one read per actuator: its stored tests, and which of the records it holds already
+            stored = self.conn.execute("SELECT time_h, usage FROM tests WHERE actuator_id = ?", (a,)).fetchall()
+            held = {t for t, _u in stored}
+            tests[a] = [(t, u, False) for t, u in stored if u is not None] + [x for x in batch if x[0] not in held]
             replaced.setdefault(a, []).extend(t for (t,) in self.conn.execute(
                 "SELECT time_h FROM maintenance WHERE actuator_id = ? AND action = 'replace'", (a,)))
         return usage_fall_notes(tests, replaced)
