@@ -118,6 +118,31 @@ def test_an_export_of_one_actuator_and_an_explicit_maintenance_file(store, tmp_p
     assert got == prognose_json(capsys, "--history", str(store), "--actuator", "A")
 
 
+def test_imported_maintenance_older_than_a_stored_one_is_said_once(store, tmp_path, capsys):
+    """A back-filled maintenance file whose actions lie before a maintenance already stored for the
+    same fault is kept in the log; the trend restarts at the stored one, and one note says so (as
+    `history repair` does for one action). Actions of a fault with no later one say nothing."""
+    h = write(tmp_path / "h.csv", ["actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl"], [["D", 0.0, 0.0, 0.0, 0.0]])
+    m = write(tmp_path / "m.csv", ["actuator_id", "time_h", "fault", "action"],
+              [["A", 100.0, "fsj", "repair"], ["A", 200.0, "all", "repair"], ["A", 500.0, "fsj", "repair"],
+               ["B", 300.0, "gm", "repair"], ["C", 100.0, "bkl", "repair"]])
+    before = prognose_json(capsys, "--history", str(store), "--actuator", "A")["actuators"]["A"]["faults"]
+    code, out, err = run(capsys, ["history", "import", str(h), "--maintenance", str(m), "--history", str(store)])
+    assert code == 0 and "5 maintenance action(s)" in out, err
+    assert err.count("note: ") == 1, err
+    assert "3 maintenance action(s) are older than a maintenance already recorded" in err
+    assert "A fsj at 100 h (restarts at fsj 400 h)" in err and "A all at 200 h (restarts at fsj 400 h)" in err
+    assert "B gm at 300 h (restarts at gm 360 h)" in err
+    assert "A fsj at 500" not in err and "C bkl" not in err
+    assert len(table(store)[1]) == 2 + 5                  # every action is kept in the log
+    after = prognose_json(capsys, "--history", str(store), "--actuator", "A")["actuators"]["A"]["faults"]
+    assert after["gm"] != before["gm"] and after["fsj"] != before["fsj"]   # 200 h all, 500 h fsj restart them
+
+    # imported again: nothing new, nothing said
+    code, out, err = run(capsys, ["history", "import", str(h), "--maintenance", str(m), "--history", str(store)])
+    assert code == 0 and "0 maintenance action(s)" in out and err == ""
+
+
 def test_a_usage_count_that_falls_in_a_history_csv_is_kept_and_said_unless_a_replacement_explains_it(tmp_path, capsys):
     """As in the store: a replaced unit's count restarts, and its first tests may come before the
     replacement is known. Until 2026-11-29 a fall within one file was refused, so a store holding one

@@ -144,6 +144,7 @@ def cmd_history_list(args) -> int:
 
 def cmd_history_import(args) -> int:
     from ..prognostics.history_csv import read_history_csv, read_maintenance_csv
+    from ..prognostics.records import superseded_notes
     from ..prognostics.store import HistoryStore
     settings = _settings(args)
     db = _db(args, False, settings)
@@ -153,9 +154,11 @@ def cmd_history_import(args) -> int:
     _maintenance_beside(args.file, args.maintenance)
     with HistoryStore(db, settings) as st:
         notes = st.usage_notes(recs, maint) + (st.backfill_notes(recs) if args.backfill else [])
+        older = superseded_notes([(x["actuator_id"], x["time_h"], x["fault"]) for x in st.list_maintenance()],
+                                 maint or [])
         n, m = st.import_files(args.file, args.maintenance, recs, maint, backfill=args.backfill)
         total = st.count_tests()
-    for note in notes if n else []:
+    for note in (notes if n else []) + (older if m else []):
         print(f"note: {note}", file=sys.stderr)
     extra = f" and {m} maintenance action(s) from {args.maintenance}" if args.maintenance else ""
     print(f"imported {n} new test(s) from {args.file}{extra} into {db} ({total} tests in all)")

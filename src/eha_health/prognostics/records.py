@@ -157,6 +157,32 @@ def trend_start_h(repairs, fault: str) -> float | None:
     return max(times) if times else None
 
 
+def superseded_notes(stored: list[tuple], new: list, shown: int = 5) -> list[str]:
+    """One note for the actions of ``new`` (MaintenanceRecord) older than a maintenance of the same
+    fault already in ``stored`` (actuator, time_h, fault): they are kept in the log, and the
+    trend restarts at the stored one instead (what ``history repair`` says of one action)."""
+    logs: dict[str, list] = {}
+    for a, t, f in stored:
+        logs.setdefault(a, []).append((t, f))
+    said = []
+    for m in new:
+        log = logs.get(m.actuator_id, [])
+        if (m.time_h, m.fault) in log:
+            continue                                  # already stored: not imported again
+        faults = ("gm", "fsj", "bkl") if m.fault == "all" else (m.fault,)
+        later = {f: trend_start_h(log, f) for f in faults}
+        later = {f: t for f, t in later.items() if t is not None and t > m.time_h}
+        if later:
+            said.append(f"{m.actuator_id} {m.fault} at {m.time_h:g} h (restarts at "
+                        + ", ".join(f"{f} {t:g} h" for f, t in later.items()) + ")")
+    if not said:
+        return []
+    more = f" and {len(said) - shown} more" if len(said) > shown else ""
+    return [f"{len(said)} maintenance action(s) are older than a maintenance already recorded for the same "
+            f"fault, where the trend restarts instead; they are kept in the log only: "
+            + "; ".join(said[:shown]) + more]
+
+
 @dataclass
 class History:
     actuators: dict = field(default_factory=dict)   # id -> ActuatorHistory
