@@ -15,9 +15,10 @@ of the RUL [h], each drawing its onset first:
 * path models (linear, exponential, power): the mean path l0 + a g(t~) reaches the
   threshold at t~* = g^-1((thr - l0) / a); RUL = (t~* - t~_now) T_s (0 if already above,
   no crossing if a <= 0);
-* Wiener: from X_now = l0 + a g_now + u_now, the first passage of the threshold in the
-  time scale g is inverse Gaussian, dg ~ IG(mean (thr - X_now)/a, shape (thr - X_now)^2/sigma^2);
-  t~* = g^-1(g_now + dg).
+* Wiener: from X_now = l0 + a g_now + u_now and the current rate a + v_now, the rate's random
+  walk drawn as one smooth path per sample, kept from turning negative
+  (:func:`rate_walk_passage`), and the diffusion about it inverse Gaussian in the time scale g,
+  dg ~ IG(mean = that path's passage, shape (thr - X_now)^2/sigma^2); t~* = g^-1(g_now + dg).
 
 Samples beyond ``horizon_factor`` data spans count as "beyond the horizon" (inf). The
 overall RUL is the first fault to reach its threshold, faults independent:
@@ -98,6 +99,52 @@ def inverse_gaussian(mean: np.ndarray, shape: np.ndarray, z: np.ndarray, u: np.n
     return np.where(u <= mean / (mean + x), x, mean * mean / x)
 
 
+REFLECTED_GROWTH = (2.0 / 3.0) * math.sqrt(2.0 / math.pi)   # E int_0^u |W| = this u^(3/2), W standard
+
+
+def rate_walk_passage(d: np.ndarray, rate: np.ndarray, z: np.ndarray, rate_sd: np.ndarray,
+                      iterations: int = 40) -> np.ndarray:
+    """dg > 0 at which the smooth path of a random-walking wear rate first reaches d [g units]:
+    inf where rate <= 0, 0 where d <= 0.
+
+    The walk (sd ``rate_sd`` per sqrt(g)) adds q dg^3 / 3 to the level variance at dg; each sample
+    draws it as L(dg) = rate dg + c dg^(3/2), c = z sqrt(q / 3), whose rate is rate + 3/2 c
+    sqrt(dg). A wear rate does not turn negative (K does not heal): where c < 0 the rate reaches 0
+    at dg* = (2 rate / (3 c))^2 with L at its peak 4 rate^3 / (27 c^2), and a walk restarted there
+    from 0 and reflected grows the level by E int |W| = (2/3) sqrt(2 / pi) sqrt(q) u^(3/2) in u =
+    dg - dg*. So: the first root of c x^3 + rate x^2 = d (x = sqrt(dg), bracketed Newton steps) if
+    the peak reaches d, else dg* + ((d - peak) / ((2/3) sqrt(2 / pi) sqrt(q)))^(2/3). Against
+    simulated paths of the reflected walk: tests/test_prognostics_models.py."""
+    d, rate, z, rate_sd = np.broadcast_arrays(*(np.asarray(v, float) for v in (d, rate, z, rate_sd)))
+    out = np.where(~(rate > 0), np.inf, np.where(~(d > 0), 0.0, np.nan))
+    go = np.isnan(out)
+    d, rate, c, rq = d[go], rate[go], z[go] * rate_sd[go] / math.sqrt(3.0), rate_sd[go]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        x0 = np.sqrt(d / rate)
+        neg = c < 0
+        xs = np.where(neg, -2.0 * rate / (3.0 * c), np.inf)
+        peak = np.where(neg, 4.0 * rate ** 3 / (27.0 * c * c), np.inf)
+        after = neg & (peak < d)
+        res = np.where(after, xs * xs + ((d - peak) / (REFLECTED_GROWTH * rq)) ** (2.0 / 3.0), x0 * x0)
+        # the first root: c > 0 in (0, x0]; c < 0 with the peak above d in [x0, x*]; c = 0: x0
+        it = np.nonzero((c != 0) & ~after)[0]
+        cc, rr, dd = c[it], rate[it], d[it]
+        lo, hi = np.where(cc < 0, x0[it], 0.0), np.where(cc < 0, xs[it], x0[it])
+        x = x0[it]
+        for _ in range(iterations):
+            h = (cc * x + rr) * x * x - dd
+            lo, hi = np.where(h < 0, x, lo), np.where(h < 0, hi, x)
+            step = x - h / ((3.0 * cc * x + 2.0 * rr) * x)
+            nxt = np.where((step > lo) & (step < hi), step, 0.5 * (lo + hi))
+            done = np.abs(nxt - x) <= 1e-13 * x
+            x = nxt
+            if done.all():
+                break
+        res[it] = x * x
+    out[go] = res
+    return out
+
+
 def weighted_quantiles(x: np.ndarray, w: np.ndarray | None, qs) -> np.ndarray:
     """Quantiles of samples ``x`` (inf allowed) with weights ``w`` (inverted CDF, last axis)."""
     order = np.argsort(x, axis=-1)
@@ -142,7 +189,7 @@ def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, 
     t_now = np.array([s.tau_h[-1] for s in series]) / span
     cum_models = np.cumsum(model_w, -1)
     cum_models[:, -1] = 1.0
-    z0, z1 = draws.z[None, :, 0], draws.z[None, :, 1]
+    z0, z1, z2 = draws.z[None, :, 0], draws.z[None, :, 1], draws.z[None, :, 2]
     for a in range(0, S, CHUNK):
         sl = slice(a, min(S, a + CHUNK))
         n = sl.stop - sl.start
@@ -167,14 +214,18 @@ def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, 
                 if f.model == "wiener":
                     sig, rq = f.sigma[sl][rows, c], f.rate_sd[sl][rows, c]
                     d = th - p0
-                    mean = d / p1
-                    # the rate's own random walk adds q dg^3 / 3 to the level variance at dg:
-                    # folded into an equivalent diffusion at the mean passage (moment match)
-                    s2 = sig * sig + rq * rq * mean * mean / 3.0
-                    dg = inverse_gaussian(mean, d * d / s2, draws.z_ig[None, :], draws.u_ig[None, :])
-                    ok = (d > 0) & (p1 > 0)
+                    # the rate's own random walk adds q dg^3 / 3 to the level variance at dg: each
+                    # sample's smooth path X_now + rate dg + z sqrt(q / 3) dg^(3/2) (its rate kept
+                    # from turning negative) holds it at every dg, and the diffusion sigma spreads
+                    # the passage about that path's
+                    mean = np.full(d.shape, np.inf)
+                    need = use & (d > 0) & (p1 > 0)         # this model's samples still to cross
+                    mean[need] = rate_walk_passage(d[need], p1[need], np.broadcast_to(z2, d.shape)[need], rq[need])
+                    dg = np.where(sig > 0, inverse_gaussian(mean, d * d / (sig * sig), draws.z_ig[None, :],
+                                                            draws.u_ig[None, :]), mean)
+                    ok = (d > 0) & (p1 > 0) & np.isfinite(mean)
                     t_star = shape_g_inv(kind, np.where(ok, gn + dg, 0.0), b)
-                    r = np.where(d <= 0, 0.0, np.where(p1 > 0, t_star - tn, np.inf))
+                    r = np.where(d <= 0, 0.0, np.where(ok, t_star - tn, np.inf))
                 else:
                     level = p0 + p1 * gn
                     ok = (level < th) & (p1 > 0)
