@@ -540,3 +540,91 @@ def test_a_back_filled_test_is_said_to_change_only_the_tests_before_every_fault_
         note = st.backfill_notes([rec("R", 275.0)])
     assert note == [backfill_note("R", [275.0], [300.0, 350.0, 400.0, 450.0, 500.0, 550.0])]
     assert "6 later stored test(s) (300-550 h)" in note[0]
+
+
+def _read_only_folder(folder: Path):
+    """A runner of argv with ``folder`` read-only, as on a read-only medium: a non-root process
+    runs with the folder chmod 0555; root ignores permissions, so it runs in a user and mount
+    namespace where the folder is bind-mounted read-only (EROFS, no privilege needed), or the
+    test is skipped where the kernel forbids that."""
+    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    if os.geteuid() != 0:
+        def run(argv):
+            folder.chmod(0o555)
+            try:
+                return subprocess.run(argv, capture_output=True, text=True, env=env, timeout=600)
+            finally:
+                folder.chmod(0o755)
+        return run
+    wrap = ["unshare", "--user", "--map-root-user", "--mount", "sh", "-c",
+            'mount --bind -o ro "$0" "$0" && exec "$@"', str(folder)]
+    try:
+        probe = subprocess.run(wrap + ["sh", "-c", 'touch "$0/x"', str(folder)], capture_output=True, timeout=60)
+    except FileNotFoundError:
+        pytest.skip("running as root, and no unshare(1) for a read-only bind mount")
+    if probe.returncode == 0 or (folder / "x").exists():
+        pytest.skip(f"running as root, and no unprivileged read-only bind mount here: {probe.stderr!r}")
+    return lambda argv: subprocess.run(wrap + argv, capture_output=True, text=True, env=env, timeout=600)
+
+
+def test_a_history_on_a_read_only_medium_is_read_and_writers_say_it_is_read_only(tmp_path):
+    """WAL needs a -shm beside the file, which SQLite cannot create on a read-only medium: the
+    readers read the file as it is, the writers say what is read-only (probe 11 found all of
+    them saying "not a history database")."""
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    db = ro / "h.sqlite"
+    with HistoryStore(db) as st:
+        st.add_tests([rec("ACT-7", t, k=(0.01 * i, 0.02 * i, 0.0)) for i, t in enumerate((100.0, 500.0, 1000.0))])
+    assert sorted(p.name for p in ro.iterdir()) == ["h.sqlite"]      # closed: no -wal, no -shm
+    before, stored = db.read_bytes(), snapshot(db)
+    csv_in = tmp_path / "more.csv"
+    csv_in.write_text("actuator_id,time_h,k_gm,k_fsj,k_bkl\nACT-7,1100,0.05,0.06,0\n")
+    run = _read_only_folder(ro)
+    cli = [sys.executable, "-m", "eha_health.cli"]
+
+    got = run(cli + ["history", "list", "--history", str(db), "--json"])
+    assert got.returncode == 0, got.stderr
+    assert [t["time_h"] for t in json.loads(got.stdout)["tests"]] == [100.0, 500.0, 1000.0]
+    got = run(cli + ["prognose", "--actuator", "ACT-7", "--history", str(db), "--json"])
+    assert got.returncode == 0, got.stderr
+    assert "ACT-7" in json.loads(got.stdout)["actuators"]
+
+    for argv in (["history", "repair", "--actuator", "ACT-7", "--fault", "gm", "--time-h", "1000"],
+                 ["history", "import", str(csv_in)]):
+        got = run(cli + argv + ["--history", str(db)])
+        assert got.returncode == 2 and got.stdout == ""
+        line, = got.stderr.splitlines()
+        assert "read-only" in line and "nothing written" in line and "not a history" not in line, line
+    got = run(cli + ["history", "import", str(csv_in), "--history", str(ro / "new.sqlite")])
+    assert got.returncode == 2 and "its folder" in got.stderr and "read-only" in got.stderr, got.stderr
+
+    # the monitor's step: the test is not appended, and says why; the RUL is the stored history's
+    step = textwrap.dedent(f"""
+        import json
+        from eha_health import Faults, diagnose, load, simulate
+        from eha_health.monitoring.prognosis import PrognosisStep
+        r = simulate(kind="reference", faults=Faults(k_gm=0.02),
+                     params=load("reference").with_effect_names(["sensor_noise"]), seed=5)
+        out = PrognosisStep({str(db)!r}, "ACT-7").after_diagnosis(diagnose(r, method="deterministic"), 1100.0)
+        print(json.dumps({{"appended": out.appended, "error": out.error, "rul": out.prognosis is not None}}))
+    """)
+    got = run([sys.executable, "-c", step])
+    assert got.returncode == 0, got.stderr
+    out = json.loads(got.stdout.splitlines()[-1])
+    assert not out["appended"] and out["rul"], out
+    assert "not appended" in out["error"] and "read-only" in out["error"] and "not a history" not in out["error"]
+
+    assert db.read_bytes() == before and snapshot(db) == stored
+    assert sorted(p.name for p in ro.iterdir()) == ["h.sqlite"]
+
+    # a -wal left with changes not in the file (a writer that died): read immutable, the file would
+    # lack them, so the reader refuses and says what to do
+    live = sqlite3.connect(tmp_path / "live.sqlite")   # open while copied: its -wal holds the tests
+    with HistoryStore(tmp_path / "live.sqlite") as st:
+        st.add_tests([rec("ACT-7", 100.0)])
+        for suffix in ("", "-wal"):
+            (ro / f"w.sqlite{suffix}").write_bytes((tmp_path / f"live.sqlite{suffix}").read_bytes())
+    live.close()
+    got = run(cli + ["history", "list", "--history", str(ro / "w.sqlite")])
+    assert got.returncode == 2 and "w.sqlite-wal" in got.stderr and "copy" in got.stderr, got.stderr

@@ -10,7 +10,7 @@ actuator of the history fitted) is fitted only when a fault of this actuator tak
 since its onset), and is cached until the rest of the fleet gains a test. :meth:`PrognosisStep.stop`
 (the node shutting down) lets a running step end early: the test is still appended, the
 prognosis is skipped or its fleet-prior fit cut short, and the outcome says so. A bad
-append (times out of order, K out of range, an unreadable file) never raises: the outcome says
+append (times out of order, K out of range, a read-only or unreadable file) never raises: the outcome says
 what went wrong and the RUL is that of the stored history.
 
 :func:`rul_values` turns the outcome into the ``/diagnostics`` key values (docs/interfaces.md):
@@ -78,15 +78,21 @@ class PrognosisStep:
                         discrepancy: str | None = None, usage: float | None = None) -> Outcome:
         """Append ``diagnosis`` at operating time ``time_h`` [h] (window stamp ``sim_time_s`` [s]), then prognose."""
         from ..prognostics.rul import prognose
-        from ..prognostics.store import HistoryStore
+        from ..prognostics.store import HistoryStore, ReadOnlyHistory
         with self._lock:
             out = Outcome(False, time_h=time_h)
             try:
-                with HistoryStore(self.history, self.settings) as st:
+                try:
+                    st = HistoryStore(self.history, self.settings)
+                except ReadOnlyHistory as e:   # a read-only medium: no append, the stored history's RUL
+                    out.error = f"not appended to the history: {e}"
+                    st = HistoryStore(self.history, self.settings, readonly=True)
+                with st:
                     try:
-                        out.appended = st.add_diagnosis(diagnosis, self.actuator_id, time_h, usage=usage,
-                                                        response=response, sim_time_s=sim_time_s,
-                                                        discrepancy=discrepancy)
+                        if not st.readonly:
+                            out.appended = st.add_diagnosis(diagnosis, self.actuator_id, time_h, usage=usage,
+                                                            response=response, sim_time_s=sim_time_s,
+                                                            discrepancy=discrepancy)
                     except PrognosticsError as e:   # e.g. times out of order: the stored history stays
                         out.error = f"not appended to the history: {e}"
                     if self._stopping.is_set():

@@ -40,6 +40,7 @@ import math
 import os
 import sqlite3
 import time
+import urllib.parse
 from pathlib import Path
 
 import numpy as np
@@ -140,17 +141,20 @@ class HistoryStore:
             if self.path.suffix.lower() == ".csv":     # it would be a SQLite file no command reads as one
                 raise PrognosticsError(f"{self.path}: a HISTORY.csv is read, not written: the history to write "
                                        f"to is a SQLite file (import a CSV into one: eha-health history import)")
-            self.path.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as e:    # a read-only filesystem, no permission
+                raise ReadOnlyHistory(f"{self.path}: cannot create its folder ({e.strerror}); nothing "
+                                      f"written") from None
         try:
-            self.conn = sqlite3.connect(str(self.path), timeout=BUSY_TIMEOUT_S, isolation_level=None)
-            # text the store did not write (a damaged page) must not raise mid-query
-            self.conn.text_factory = lambda b: b.decode("utf-8", "replace")
-            ver = self.conn.execute("PRAGMA user_version").fetchone()[0]
+            self.conn, ver = self._connect()
             # a damaged file must be refused here, not fail later mid-query (fuzzing found both)
             check = self.conn.execute("PRAGMA quick_check").fetchone()[0]
             if check != "ok":
                 raise sqlite3.DatabaseError("integrity check: " + " ".join(str(check).split()))
         except (sqlite3.DatabaseError, UnicodeDecodeError) as e:   # sqlite's own message may quote damaged bytes
+            if isinstance(e, sqlite3.OperationalError) and (ro := self._read_only(e)) is not None:
+                raise ro from None
             raise PrognosticsError(f"{self.path}: not a history database ({' '.join(str(e).split())[:200]})") from None
         if ver > SCHEMA_VERSION:
             self.conn.close()
@@ -188,6 +192,47 @@ class HistoryStore:
             self.conn.close()
             raise
 
+    def _connect(self) -> tuple[sqlite3.Connection, int]:
+        """A connection and the file's ``user_version``. A WAL file in a folder this process cannot
+        write (a read-only filesystem) cannot be opened the usual way: SQLite creates its ``-shm``
+        beside it. Read-only, such a file is opened immutable (SQLite's URI ``immutable=1``: no
+        locks, no ``-shm``) -- no writer can create the ``-shm`` there either, so none is running."""
+        conn = sqlite3.connect(str(self.path), timeout=BUSY_TIMEOUT_S, isolation_level=None)
+        try:
+            # text the store did not write (a damaged page) must not raise mid-query
+            conn.text_factory = lambda b: b.decode("utf-8", "replace")
+            return conn, conn.execute("PRAGMA user_version").fetchone()[0]
+        except sqlite3.OperationalError as e:
+            conn.close()
+            if not self.readonly or self._read_only(e) is None or not self.path.is_file():
+                raise
+        wal = self.path.with_name(self.path.name + "-wal")
+        if wal.is_file() and wal.stat().st_size > 0:   # immutable would read the file without them
+            raise ReadOnlyHistory(f"{self.path}: {wal.name} beside it holds changes not yet in the file, and "
+                                  f"SQLite cannot read them in a read-only folder (it needs to create "
+                                  f"{self.path.name}-shm): copy the file and its {wal.name} to a writable folder")
+        conn = sqlite3.connect(f"file:{urllib.parse.quote(str(self.path.resolve()))}?immutable=1", uri=True,
+                               isolation_level=None)
+        conn.text_factory = lambda b: b.decode("utf-8", "replace")
+        return conn, conn.execute("PRAGMA user_version").fetchone()[0]
+
+    def _read_only(self, e: sqlite3.OperationalError) -> "ReadOnlyHistory | None":
+        """A file SQLite cannot open or write because it or its folder is read-only, as one line
+        that says so (it is not "not a history database"), else None."""
+        if (getattr(e, "sqlite_errorcode", 0) & 0xFF) not in (sqlite3.SQLITE_CANTOPEN, sqlite3.SQLITE_READONLY):
+            return None
+        folder = self.path.parent
+        if not os.access(folder, os.W_OK):
+            what = (f"its folder {folder} is read-only (a read-only filesystem, or no write permission): SQLite "
+                    f"creates the history's {self.path.name}-wal and -shm there")
+        elif self.path.exists() and not os.access(self.path, os.W_OK):
+            what = "the file is read-only (a read-only filesystem, or no write permission)"
+        else:
+            return None
+        tail = ("; nothing written (`eha-health prognose` and `history list` read it there)" if not self.readonly
+                else "")
+        return ReadOnlyHistory(f"{self.path}: {what}{tail}")
+
     def _to_wal(self) -> None:
         """Switch the file to WAL. A new file that several writers open at once: SQLite refuses
         the switch at once (SQLITE_BUSY without its busy handler, which could deadlock) while
@@ -204,9 +249,9 @@ class HistoryStore:
                 pause = min(2 * pause, 0.25)
 
     def _locked(self, e: sqlite3.OperationalError) -> Exception:
-        """A busy file as one line that names it (the CLI's exit code 2), other errors as they are."""
+        """A busy or read-only file as one line that names it (the CLI's exit code 2), other errors as they are."""
         if not _busy(e):
-            return e
+            return self._read_only(e) or e
         return PrognosticsError(f"{self.path}: the history is locked by another process (waited "
                                 f"{BUSY_TIMEOUT_S:g} s: {e}); nothing was written")
 
@@ -235,8 +280,11 @@ class HistoryStore:
         try:
             yield
             self.conn.execute("COMMIT")
-        except BaseException:
+        except BaseException as e:
             self.conn.execute("ROLLBACK")
+            # a file read-only under a writable folder opens, read-only: the first write fails
+            if isinstance(e, sqlite3.OperationalError) and (ro := self._read_only(e)) is not None:
+                raise ro from None
             raise
 
     def _stamp_version(self) -> None:
@@ -578,6 +626,10 @@ class HistoryStore:
                     self.conn.execute(q)]
             reps = list(self.conn.execute("SELECT actuator_id, time_h, fault, action FROM maintenance"))
         return history_from_records(recs, reps, self.settings.history.default_std)
+
+
+class ReadOnlyHistory(PrognosticsError):
+    """The history file or its folder is read-only: it can be read, not written."""
 
 
 def backfill_note(actuator_id: str, times: list[float], later: list[float]) -> str:
