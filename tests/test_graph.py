@@ -180,6 +180,61 @@ def test_three_processes_over_dds_with_an_isolated_domain(tmp_path):
     assert row["actuator_id"] == "ACT-3" and abs(row["k_fsj"] - est[1]) < 1e-9
 
 
+def _history_to_1000_h(db):
+    """A history whose actuator ACT-7 has tests up to 1000 h (an operating clock no stamp reaches)."""
+    from eha_health.prognostics.records import HealthRecord
+    from eha_health.prognostics.store import HistoryStore
+    with HistoryStore(db) as st:
+        st.add_tests([HealthRecord("ACT-7", t, (0.01, 0.02, 0.0), (0.002,) * 3) for t in (100.0, 500.0, 1000.0)])
+        return st.list_tests()
+
+
+def test_launch_says_what_went_into_the_history_and_fails_when_nothing_could(tmp_path, capsys):
+    """Probe 11: the tests' times were their simulated stamps in hours, every append refused, and
+    the command exited 0 with a summary that never named the history."""
+    from eha_health.cli import main
+    from eha_health.prognostics.store import HistoryStore
+    db = tmp_path / "h.sqlite"
+    stored = _history_to_1000_h(db)
+    domain = 1 + (int(os.environ["ROS_DOMAIN_ID"]) + 60) % 200
+    argv = ["launch", "--faults", "gm=0.1,fsj=0.78,bkl=0.1", "--rate", "0", "--domain-id", str(domain),
+            "--history", str(db), "--actuator", "ACT-7", "--log", str(tmp_path / "launch.mcap"), "--timeout", "900"]
+    assert main(argv + ["--tests", "2"]) == 1
+    out = capsys.readouterr().out
+    assert f"history {db} (actuator ACT-7): 0 of 2 diagnosed test(s) appended, 2 refused (first: test 1: " in out
+    assert "times out of order" in out and "--operating-hours" in out
+    with HistoryStore(db, readonly=True) as st:
+        assert st.list_tests() == stored
+    # one operating time is one test's: two would give the second the first's time
+    assert main(argv + ["--tests", "2", "--operating-hours", "1100"]) == 2
+    assert "one test's time" in capsys.readouterr().err
+    assert main(argv + ["--tests", "1", "--operating-hours", "1100"]) == 0
+    assert f"history {db} (actuator ACT-7): 1 of 1 diagnosed test(s) appended\n" in capsys.readouterr().out
+    with HistoryStore(db, readonly=True) as st:
+        assert [t["time_h"] for t in st.list_tests()] == [100.0, 500.0, 1000.0, 1100.0]
+
+
+def test_replay_says_what_went_into_the_history_and_takes_operating_hours(live, tmp_path, capsys):
+    from eha_health.cli import main
+    from eha_health.prognostics.store import HistoryStore
+    db = tmp_path / "h.sqlite"
+    stored = _history_to_1000_h(db)
+    argv = ["replay", str(live["log"]), "--rate", "0", "--history", str(db), "--actuator", "ACT-7"]
+    assert main(argv) == 1
+    out = capsys.readouterr().out
+    assert f"history {db} (actuator ACT-7): 0 of 1 diagnosed test(s) appended, 1 refused (first: test 1: " in out
+    with HistoryStore(db, readonly=True) as st:
+        assert st.list_tests() == stored
+    assert main(argv + ["--operating-hours", "1100"]) == 0
+    assert f"history {db} (actuator ACT-7): 1 of 1 diagnosed test(s) appended" in capsys.readouterr().out
+    with HistoryStore(db, readonly=True) as st:
+        (last,) = st.list_tests()[3:]
+    assert last["time_h"] == 1100.0 and last["sim_time_s"] is not None
+    # the same recording again: already in the history, not a failure
+    assert main(argv + ["--operating-hours", "1100"]) == 0
+    assert "0 of 1 diagnosed test(s) appended, 1 already in it" in capsys.readouterr().out
+
+
 def test_periodic_tests_play_back_to_back_and_each_is_diagnosed():
     from rclpy.parameter import Parameter
     truth = np.array([0.3, 0.5, 0.2])

@@ -105,6 +105,8 @@ def monitor_history_option(whose: str) -> argparse.ArgumentParser:
     p.add_argument("--actuator", default="eha", help="actuator id of the diagnoses (history, /diagnostics)")
     p.add_argument("--settings", metavar="YAML", help="with --history: prognostics settings merged over "
                    "data/prognostics.yaml (docs/prognostics.md section 6)")
+    p.add_argument("--operating-hours", type=float, metavar="H", help="with --history and one test: its operating "
+                   "time in the history [h] (default: the test's simulated stamp in hours)")
     return p
 
 

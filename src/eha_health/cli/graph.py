@@ -84,9 +84,15 @@ def cmd_launch(args) -> int:
     res = launch(faults, effects=[e for e in args.effects.split(",") if e], seed=args.seed, tests=args.tests,
                  rate=args.rate, method=args.method, log_path=args.log, domain_id=args.domain_id,
                  timeout_s=args.timeout, history=args.history, actuator_id=args.actuator,
-                 prognostics_settings=_prognostics_settings(args))
+                 prognostics_settings=_prognostics_settings(args), operating_hours=args.operating_hours)
     print(json.dumps(res, indent=2, default=float) if args.json else res["summary"])
-    return 0 if res["ok"] else 1
+    return 0 if res["ok"] and not _none_appended(res) else 1
+
+
+def _none_appended(res) -> bool:
+    """Tests were diagnosed for a history, and every one that was not in it already was refused."""
+    h = res.get("history")
+    return bool(h and h["refused"] and not h["appended"])
 
 
 def cmd_replay(args) -> int:
@@ -95,9 +101,9 @@ def cmd_replay(args) -> int:
         raise UsageError("--history needs the replay's monitor (drop --no-monitor)")
     res = replay(args.bag, rate=args.rate, with_monitor=not args.no_monitor, log_path=args.log,
                  domain_id=args.domain_id, history=args.history, actuator_id=args.actuator,
-                 prognostics_settings=_prognostics_settings(args))
+                 prognostics_settings=_prognostics_settings(args), operating_hours=args.operating_hours)
     print(json.dumps(res, indent=2, default=float) if args.json else res["summary"])
-    return 0
+    return 1 if _none_appended(res) else 0
 
 
 def register(sub) -> None:

@@ -69,6 +69,22 @@ def recorded_results(log_path: str | Path) -> list[dict]:
     return sorted(out, key=lambda r: r["test_id"])
 
 
+def logged_history_outcomes(log_path: str | Path) -> list[dict]:
+    """Per diagnosed test of a monitor's MCAP log, where its append to the health history went:
+    ``test_id``, ``appended`` (bool), ``error`` (the status's ``history_error``, or None), from the
+    last ``/diagnostics`` status logged for it (the monitor logs what it publishes)."""
+    types = read_bag(log_path, topics=[]).types
+    topics = [t for t in types if t.rsplit("/", 1)[-1] == C.DIAGNOSTICS.name.rsplit("/", 1)[-1]]
+    last: dict[int, dict] = {}
+    for m in (read_bag(log_path, topics=topics).messages.get(topics[0], []) if topics else []):
+        for st in m.status:
+            v = {kv.key: kv.value for kv in st.values}
+            if "history_appended" in v and "test_id" in v:
+                last[int(v["test_id"])] = {"test_id": int(v["test_id"]), "appended": v["history_appended"] == "True",
+                                           "error": v.get("history_error")}
+    return [last[k] for k in sorted(last)]
+
+
 def resolve_topics(types: dict[str, str], path, namespace: str | None = None) -> dict[str, str]:
     """Contract name ('eha/command') -> the bag's topic ('/eha/command', '/left/eha/command', ...).
 

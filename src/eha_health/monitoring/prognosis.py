@@ -31,6 +31,9 @@ from ..physics.faults import FAULT_KEYS
 from ..prognostics.config import PrognosticsError, Settings, load_settings
 from ..prognostics.prior_cache import Cancelled, FleetPriorCache
 
+#: How an append's refusal starts (:attr:`Outcome.error`).
+NOT_APPENDED = "not appended to the history: "
+
 #: The F fields of ``prognose --json`` the status carries, and the key they become.
 RUL_FIELDS = ("rul_median_h", "rul_p05_h", "rul_p95_h", "p_fail_next")
 
@@ -85,7 +88,7 @@ class PrognosisStep:
                 try:
                     st = HistoryStore(self.history, self.settings)
                 except ReadOnlyHistory as e:   # a read-only medium: no append, the stored history's RUL
-                    out.error = f"not appended to the history: {e}"
+                    out.error = f"{NOT_APPENDED}{e}"
                     st = HistoryStore(self.history, self.settings, readonly=True)
                 with st:
                     try:
@@ -94,7 +97,7 @@ class PrognosisStep:
                                                             response=response, sim_time_s=sim_time_s,
                                                             discrepancy=discrepancy)
                     except PrognosticsError as e:   # e.g. times out of order: the stored history stays
-                        out.error = f"not appended to the history: {e}"
+                        out.error = f"{NOT_APPENDED}{e}"
                     if self._stopping.is_set():
                         raise Cancelled("prognosis skipped")
                     hist = st.history()
@@ -135,6 +138,27 @@ class PrognosisStep:
 def _h(v) -> str:
     from ..prognostics.rul import format_hours
     return "beyond the horizon" if v is None else f"{format_hours(v)} h"
+
+
+def history_summary(history, actuator_id: str, outcomes: list[dict], hint: str | None = None) -> dict:
+    """What a run's monitor did with the history: ``outcomes`` per diagnosed test (``appended``,
+    ``error``) -> counts ``appended``, ``refused`` (not appended, with a reason), ``held`` (the
+    history has it already), ``first_refusal`` and a printable ``line`` (ending in ``hint`` where
+    a test was refused)."""
+    refused = [o for o in outcomes if not o["appended"] and o.get("error")]
+    out = {"path": str(history), "actuator_id": actuator_id, "diagnosed": len(outcomes),
+           "appended": sum(bool(o["appended"]) for o in outcomes), "refused": len(refused),
+           "first_refusal": (f"test {refused[0]['test_id']}: {refused[0]['error'].removeprefix(NOT_APPENDED)}"
+                             if refused else None)}
+    out["held"] = out["diagnosed"] - out["appended"] - out["refused"]
+    line = (f"history {history} (actuator {actuator_id}): {out['appended']} of {out['diagnosed']} diagnosed "
+            f"test(s) appended")
+    if out["held"]:
+        line += f", {out['held']} already in it"
+    if refused:
+        line += f", {len(refused)} refused (first: {out['first_refusal']})" + (f"; {hint}" if hint else "")
+    out["line"] = line
+    return out
 
 
 def rul_values(outcome: Outcome | None) -> dict:

@@ -25,6 +25,8 @@ from ..identification.diagnose import DEFAULT_METHOD
 from ..io.bagrun import complete_windows, resolve_topics, truth_values
 from ..io.mcaplog import BagError, read_bag
 from ..monitoring.health import results_summary
+from ..monitoring.prognosis import history_summary
+from .launch import _HOURS_HINT, check_operating_hours
 from .params import Param, declare
 from . import msg_class, qos, run_node, teardown
 from .monitor import MonitorNode
@@ -120,11 +122,13 @@ class ReplayNode(Node):
 def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_path: str | Path = "",
            domain_id: int | None = None, method: str = DEFAULT_METHOD, timeout_s: float = 600.0,
            wait_for_subscribers_s: float = 10.0, history: str | Path | None = None,
-           actuator_id: str = "eha", prognostics_settings: str | Path | None = None) -> dict:
+           actuator_id: str = "eha", prognostics_settings: str | Path | None = None,
+           operating_hours: float | None = None) -> dict:
     """Republish ``bag`` into the graph; with ``with_monitor`` also diagnose it here, and with a
-    ``history`` append each diagnosis of ``actuator_id`` to it (operating time: the window's
-    start stamp in hours, as the monitor does) and publish the RUL (``prognostics_settings``: a
-    YAML merged over data/prognostics.yaml for it).
+    ``history`` append each diagnosis of ``actuator_id`` to it (operating time: ``operating_hours``
+    for a bag of one test, else the window's start stamp in hours, as the monitor does) and
+    publish the RUL (``prognostics_settings``: a YAML merged over data/prognostics.yaml for it);
+    the result's ``history`` says what went in.
 
     Publishing starts once a subscriber takes the commands and the marks, or after
     ``wait_for_subscribers_s`` (a monitor process that is still starting on a busy machine
@@ -138,6 +142,7 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
     win_topic = resolve_topics(read_bag(bag, topics=[]).types, bag).get(C.TEST_WINDOW.name)
     marks = read_bag(bag, topics=[win_topic] if win_topic else [])   # the marks and the metadata
     n_windows = len(complete_windows(marks, win_topic)) if with_monitor else 0
+    check_operating_hours(operating_hours, history if with_monitor else None, max(n_windows, 1))
     ctx = rclpy.Context()
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
     nodes = []
@@ -147,6 +152,8 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
         if with_monitor:
             prog = [Parameter("history", value=str(Path(history).resolve())),
                     Parameter("actuator_id", value=str(actuator_id))] if history else []
+            if history and operating_hours is not None:
+                prog.append(Parameter("operating_hours", value=float(operating_hours)))
             if history and prognostics_settings:
                 prog.append(Parameter("prognostics_settings", value=str(Path(prognostics_settings).resolve())))
             mon = MonitorNode(context=ctx, parameter_overrides=[Parameter("log_path", value=str(log_path)),
@@ -177,6 +184,11 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
                     "diagnosis": r["diagnosis"].as_dict() if r["diagnosis"] else None,
                     "truth": truth_values(marks.metadata.get(f"truth/test_{r['test_id']}"))}
                    for r in (mon.results if mon else [])]
+        hist = None
+        if mon is not None and history:
+            hist = history_summary(history, actuator_id, [
+                {"test_id": r["test_id"], "appended": r["prognosis"].appended, "error": r["prognosis"].error}
+                for r in mon.results if r.get("prognosis") is not None], _HOURS_HINT if operating_hours is None else None)
         sent = rep.sent
     finally:
         teardown(ex, nodes, ctx)
@@ -185,7 +197,9 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
     if with_monitor:
         summary += "\n" + results_summary(ok)
         summary += "".join(f"\ntest {r['test_id']}: {r['level']}: {r['message']}" for r in results if not r["diagnosis"])
-    return {"sent": sent, "results": results, "summary": summary}
+    if hist:
+        summary += "\n" + hist["line"]
+    return {"sent": sent, "results": results, "summary": summary, "history": hist}
 
 
 def main(args=None) -> int:
