@@ -298,3 +298,33 @@ def test_a_stopped_step_appends_its_test_and_cuts_the_fleet_prior_fit_short(tmp_
     fresh = PrognosisStep(db, "eha", next_check_h=50.0).after_diagnosis(diagnosis_at_500h[0], 280.0)
     assert fresh.appended and fresh.error is None and fresh.prognosis["faults"]["gm"]["rul_median_h"] is not None
     assert fresh.prognosis == prognose(db, "eha", 50.0)["actuators"]["eha"]
+
+
+def test_a_step_waiting_for_the_write_lock_says_so_and_a_stop_ends_the_wait(tmp_path, diagnosis_at_500h):
+    """Probe 11: a monitor stopped while another process held the history's write lock waited out
+    SQLite's busy timeout (60 s) in silence, and `launch` kills it after 10 s. The step now says it
+    waits and gives up when stopped: the test is not appended (its window is in the MCAP log)."""
+    import threading
+    db = tmp_path / "h.sqlite"
+    last = seed_history(db)
+    before = count(db)
+    other = sqlite3.connect(db, isolation_level=None)
+    other.execute("BEGIN IMMEDIATE")            # another writer that holds its transaction
+    said = []
+    waiting = threading.Event()
+    step = PrognosisStep(db, "eha", next_check_h=50.0, on_wait=lambda m: (said.append(m), waiting.set()))
+    got = {}
+    worker = threading.Thread(target=lambda: got.update(out=step.after_diagnosis(diagnosis_at_500h[0], last + 40)))
+    try:
+        worker.start()
+        assert waiting.wait(600), "the step never said it waits for the lock"
+        step.stop()
+        worker.join(600)
+        assert not worker.is_alive()
+    finally:
+        other.execute("ROLLBACK")
+        other.close()
+    assert len(said) == 1 and "locked by another process: waiting for it" in said[0]
+    out = got["out"]
+    assert not out.appended and out.prognosis is None and "the wait for it was stopped" in out.error
+    assert count(db) == before

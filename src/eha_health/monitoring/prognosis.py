@@ -8,8 +8,10 @@ ROS / simulated stamp of the window [s] and the wall clock; then
 :func:`~eha_health.prognostics.rul.prognose` for this actuator. The fleet prior (every other
 actuator of the history fitted) is fitted only when a fault of this actuator takes it (few points
 since its onset), and is cached until the rest of the fleet gains a test. :meth:`PrognosisStep.stop`
-(the node shutting down) lets a running step end early: the test is still appended, the
-prognosis is skipped or its fleet-prior fit cut short, and the outcome says so. A bad
+(the node shutting down) lets a running step end early: the test is still appended -- unless
+the append waits for another writer's lock: it stops waiting, the test is not appended -- the
+prognosis is skipped or its fleet-prior fit cut short, and the outcome says so. An append that
+waits for the lock says so at once (``on_wait``). A bad
 append (times out of order, K out of range, a read-only or unreadable file) never raises: the outcome says
 what went wrong and the RUL is that of the stored history.
 
@@ -21,11 +23,13 @@ that P(failure before the next check) calls for.
 """
 from __future__ import annotations
 
+import logging
 import math
 import sqlite3
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 from ..physics.faults import FAULT_KEYS
 from ..prognostics.config import PrognosticsError, Settings, load_settings
@@ -57,6 +61,8 @@ class PrognosisStep:
     warn_p_fail: float | None = None    # P(fail before the next check) for WARN (default prognosis.warn_p_fail)
     error_p_fail: float | None = None   # ... for ERROR (default prognosis.error_p_fail)
     settings: Settings = field(default_factory=load_settings)
+    #: hears that an append waits for another writer's lock (default: a warning on stderr)
+    on_wait: Callable[[str], None] = field(default=lambda m: logging.getLogger(__name__).warning(m), repr=False)
 
     def __post_init__(self):
         p = self.settings.prognosis
@@ -74,7 +80,8 @@ class PrognosisStep:
 
     def stop(self) -> None:
         """From any thread: the running and later steps append their test but skip the prognosis
-        (a fleet-prior fit of ~20 s on 1000 actuators would hold up the node's shutdown)."""
+        (a fleet-prior fit of ~20 s on 1000 actuators would hold up the node's shutdown); an append
+        waiting for another writer's lock (up to 60 s) gives up, its test not appended."""
         self._stopping.set()
 
     def after_diagnosis(self, diagnosis, time_h: float, sim_time_s: float | None = None, response=None,
@@ -86,7 +93,8 @@ class PrognosisStep:
             out = Outcome(False, time_h=time_h)
             try:
                 try:
-                    st = HistoryStore(self.history, self.settings)
+                    st = HistoryStore(self.history, self.settings, cancelled=self._stopping.is_set,
+                                      on_wait=self.on_wait)
                 except ReadOnlyHistory as e:   # a read-only medium: no append, the stored history's RUL
                     out.error = f"{NOT_APPENDED}{e}"
                     st = HistoryStore(self.history, self.settings, readonly=True)

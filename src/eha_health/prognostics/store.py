@@ -42,6 +42,7 @@ import sqlite3
 import time
 import urllib.parse
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -57,6 +58,8 @@ from .records import (K_COLUMNS, MAINT_FAULTS, STD_COLUMNS, History, HealthRecor
 SCHEMA_VERSION = 2
 #: s a writer waits for another writer's transaction before it gives up (SQLite busy timeout)
 BUSY_TIMEOUT_S = 60.0
+#: s between two asks of a waiting writer's ``cancelled()`` (:meth:`HistoryStore._begin_immediate`)
+LOCK_POLL_S = 0.25
 
 _TESTS = f"""
 CREATE TABLE IF NOT EXISTS {{name}} (
@@ -131,12 +134,16 @@ def recording_hash(path: str | Path, window: int | None = None, file_hash: str |
 class HistoryStore:
     """The SQLite health history (created on first use). Use as a context manager."""
 
-    def __init__(self, path: str | Path | None = None, settings: Settings | None = None, readonly: bool = False):
+    def __init__(self, path: str | Path | None = None, settings: Settings | None = None, readonly: bool = False,
+                 cancelled: Callable[[], bool] | None = None, on_wait: Callable[[str], None] | None = None):
         """``readonly``: read what is there and write nothing -- no schema into an empty file, no
-        switch to WAL (a file refused, or only read, stays byte for byte as it was)."""
+        switch to WAL (a file refused, or only read, stays byte for byte as it was).
+        ``cancelled``: asked while a write waits for another writer's lock; True gives up
+        (:class:`LockWaitStopped`); ``on_wait`` hears once that a write waits."""
         self.settings = settings or load_settings()
         self.path = Path(path) if path is not None else default_history_path(self.settings)
         self.readonly = readonly
+        self.cancelled, self.on_wait = cancelled, on_wait
         if not readonly:
             if self.path.suffix.lower() == ".csv":     # it would be a SQLite file no command reads as one
                 raise PrognosticsError(f"{self.path}: a HISTORY.csv is read, not written: the history to write "
@@ -237,16 +244,24 @@ class HistoryStore:
         """Switch the file to WAL. A new file that several writers open at once: SQLite refuses
         the switch at once (SQLITE_BUSY without its busy handler, which could deadlock) while
         another holds a lock, so the switch is tried again, with backoff, up to the busy timeout."""
+        self._retry_busy("PRAGMA journal_mode=WAL", backoff=True)
+
+    def _retry_busy(self, stmt: str, backoff: bool) -> None:
+        """Execute ``stmt`` until no other connection's lock refuses it, up to :data:`BUSY_TIMEOUT_S`,
+        asking :meth:`_waiting` between tries; ``backoff``: sleep between them (a statement SQLite
+        refuses at once, without its busy wait)."""
         deadline, pause = time.monotonic() + BUSY_TIMEOUT_S, 0.005
         while True:
             try:
-                self.conn.execute("PRAGMA journal_mode=WAL")
+                self.conn.execute(stmt)
                 return
             except sqlite3.OperationalError as e:
                 if not _busy(e) or time.monotonic() > deadline:
                     raise self._locked(e) from None
-                time.sleep(pause)
-                pause = min(2 * pause, 0.25)
+                self._waiting()
+                if backoff:
+                    time.sleep(pause)
+                    pause = min(2 * pause, LOCK_POLL_S)
 
     def _locked(self, e: sqlite3.OperationalError) -> Exception:
         """A busy or read-only file as one line that names it (the CLI's exit code 2), other errors as they are."""
@@ -270,13 +285,30 @@ class HistoryStore:
                 self.conn.execute(_INDEX)
                 self._stamp_version()
 
+    def _waiting(self) -> None:
+        """A write waits for another writer: say so once, give up if the caller is stopping."""
+        if self.cancelled is not None and self.cancelled():
+            raise LockWaitStopped(f"{self.path}: the history is locked by another process, and the wait for it "
+                                  f"was stopped; nothing written")
+        if self.on_wait is not None and not getattr(self, "_said_wait", False):
+            self._said_wait = True
+            self.on_wait(f"{self.path}: the history is locked by another process: waiting for it (up to "
+                         f"{BUSY_TIMEOUT_S:g} s)")
+
+    def _begin_immediate(self) -> None:
+        """BEGIN IMMEDIATE, waiting up to :data:`BUSY_TIMEOUT_S` for another writer in steps of
+        :data:`LOCK_POLL_S` (SQLite's busy wait cannot be interrupted: a monitor told to stop
+        waited the whole minute), asking :meth:`_waiting` between them."""
+        self.conn.execute(f"PRAGMA busy_timeout = {int(LOCK_POLL_S * 1000)}")
+        try:
+            self._retry_busy("BEGIN IMMEDIATE", backoff=False)
+        finally:
+            self.conn.execute(f"PRAGMA busy_timeout = {int(BUSY_TIMEOUT_S * 1000)}")
+
     @contextlib.contextmanager
     def _immediate(self):
         """One write transaction (BEGIN IMMEDIATE): all of it is committed, or none of it."""
-        try:
-            self.conn.execute("BEGIN IMMEDIATE")
-        except sqlite3.OperationalError as e:
-            raise self._locked(e) from None
+        self._begin_immediate()
         try:
             yield
             self.conn.execute("COMMIT")
@@ -626,6 +658,10 @@ class HistoryStore:
                     self.conn.execute(q)]
             reps = list(self.conn.execute("SELECT actuator_id, time_h, fault, action FROM maintenance"))
         return history_from_records(recs, reps, self.settings.history.default_std)
+
+
+class LockWaitStopped(PrognosticsError):
+    """A write gave up waiting for another writer's lock because its caller's ``cancelled()`` said so."""
 
 
 class ReadOnlyHistory(PrognosticsError):
