@@ -328,3 +328,54 @@ def test_a_step_waiting_for_the_write_lock_says_so_and_a_stop_ends_the_wait(tmp_
     out = got["out"]
     assert not out.appended and out.prognosis is None and "the wait for it was stopped" in out.error
     assert count(db) == before
+
+
+def test_another_diagnosis_at_a_stored_time_and_stamp_is_refused_not_dropped(tmp_path, diagnosis_at_500h):
+    """A simulated graph restarts its stamps at 0, so a new session's first test comes at the time and
+    window stamp of a stored one. It was dropped without a word (probe 11: not appended, no error);
+    the same recording again still adds nothing and says nothing."""
+    d, r = diagnosis_at_500h
+    db = tmp_path / "h.sqlite"
+    step = PrognosisStep(db, "eha")
+    assert step.after_diagnosis(d, 0.0, sim_time_s=0.0, response=r).appended
+    again = step.after_diagnosis(d, 0.0, sim_time_s=0.0, response=r)
+    assert not again.appended and again.error is None and count(db) == 1
+    r2 = simulate(kind="reference", faults=Faults(k_gm=0.45, k_fsj=0.6, k_bkl=0.4),
+                  params=load("reference").with_effect_names(["sensor_noise"]), seed=8)
+    other = step.after_diagnosis(diagnose(r2, method="deterministic"), 0.0, sim_time_s=0.0, response=r2)
+    assert not other.appended and "duplicate row" in other.error and "time_h=0" in other.error
+    assert rul_values(other)["history_error"] == other.error and count(db) == 1
+    with HistoryStore(db) as st:
+        assert st.list_tests("eha")[0]["k_gm"] == pytest.approx(d.faults.k_gm)     # the stored one stays
+
+
+@pytest.mark.graph
+def test_a_new_session_whose_test_collides_with_a_stored_one_is_refused_loudly(tmp_path):
+    """Two monitor sessions on one history (probe 11's launch, then launch --faults): the second
+    session's test has the first one's time and stamp and another K. The status says it was not
+    appended and is raised to WARN, and the log records the refusal (not as appended)."""
+    from eha_health.io.mcaplog import read_bag
+    from eha_health.ros.graph import Graph
+    from msg_bridge import contract as C
+    db = tmp_path / "h.sqlite"
+    with Graph(method="deterministic", log_path=tmp_path / "one.mcap", monitor_params={"history": str(db)}) as g:
+        first = g.run_test()
+    assert first["prognosis"].appended and count(db) == 1
+    log = tmp_path / "two.mcap"
+    with Graph(faults=Faults(k_gm=0.15), method="deterministic", log_path=log,
+               monitor_params={"history": str(db)}) as g:
+        seen = g.listen(C.DIAGNOSTICS, "independent_listener")
+        res = g.run_test()
+
+        def status():
+            return [st for m in seen for st in m.status if any(kv.key == "history_appended" for kv in st.values)]
+        g.spin_until(status, 300.0, "/diagnostics of the test")
+    st = status()[-1]
+    kv = {k.key: k.value for k in st.values}
+    assert not res["prognosis"].appended and "duplicate row" in res["prognosis"].error
+    assert float(kv["k_gm"]) < 0.3 and st.level == bytes([1]) and res["level"] == "WARN"    # K alone says OK
+    assert kv["history_appended"] == "False" and "duplicate row" in kv["history_error"] and count(db) == 1
+    meta = read_bag(log, topics=[]).metadata
+    tid = res["test_id"]
+    assert f"history/test_{tid}" not in meta
+    assert "duplicate row" in meta[f"history_refused/test_{tid}"]["error"]

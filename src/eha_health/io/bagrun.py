@@ -39,6 +39,9 @@ class Run:
 #: Metadata record of a test the monitor appended to its health history: ``actuator_id``, ``time_h``
 #: (operating hours), ``sim_time_s`` (window start stamp), ``usage`` (if given), ``history`` (the file).
 HISTORY_META = "history/test_{}"
+#: Metadata record of a diagnosed test the history refused (``actuator_id``, ``time_h``, ``sim_time_s``,
+#: ``history``, ``error``: why; e.g. another diagnosis stored at that time): not read back as appended.
+HISTORY_REFUSED_META = "history_refused/test_{}"
 
 
 def history_times(path: str | Path, test_id: int | None) -> dict[str, float]:

@@ -352,7 +352,9 @@ class HistoryStore:
     def holds_test(self, actuator_id: str, time_h: float, sim_time_s: float | None) -> bool:
         """Whether the store has this test by another path: the same actuator, operating time and
         window stamp (a monitor appends a test live, hashed by its channels; ``history add`` or a
-        batch of the monitor's log brings it again, hashed by the file). No stamp: not known."""
+        batch of the monitor's log brings it again, hashed by the file). No stamp: not known. Only
+        for a test read from a file: a live test at a stored time and stamp is another session's
+        (a simulated clock restarts at 0), :meth:`add_tests`."""
         return sim_time_s is not None and self.conn.execute(
             "SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ? AND sim_time_s = ?",
             (actuator_id, float(time_h), float(sim_time_s))).fetchone() is not None
@@ -468,7 +470,8 @@ class HistoryStore:
 
         A record whose ``source_hash`` is already stored for the same actuator adds nothing
         (the same recording twice); for another actuator it is an error. So does a record of a test
-        the store holds by another path (:meth:`holds_test`, :meth:`holds_values`).
+        the store holds by another path (:meth:`holds_values`; a record read from a file also
+        :meth:`holds_test`): a live record with other K at a stored time is a duplicate row.
         """
         self._writable()
         items = self._prepare(records, wheres)
@@ -499,7 +502,10 @@ class HistoryStore:
                 raise PrognosticsError(f"{w}: this recording is already in the history for actuator {owner}")
             if owner is not None or r.source_hash in seen:
                 continue
-            if self.holds_test(r.actuator_id, r.time_h, r.sim_time_s) or self.holds_values(r):
+            # a live test (no file) is the first path by which a test comes: the same one again has
+            # its hash or its K; another diagnosis at its time and stamp is a duplicate row (probe 11)
+            if r.source_path is not None and self.holds_test(r.actuator_id, r.time_h, r.sim_time_s) \
+                    or self.holds_values(r):
                 continue
             seen.add(r.source_hash)
             new.append((w, r))

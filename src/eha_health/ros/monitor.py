@@ -42,7 +42,7 @@ from msg_bridge import convert as cv
 from ..discrepancy.settings import DEFAULT_MAX_EFFECTS
 from ..identification.diagnose import DEFAULT_METHOD, METHODS
 from ..identification.fitness import FITNESSES
-from ..io.bagrun import HISTORY_META
+from ..io.bagrun import HISTORY_META, HISTORY_REFUSED_META
 from ..io.mcaplog import BagWriter
 from ..io.window import IncompleteWindow, NoSamples
 from ..monitoring.analysis import analyse_window
@@ -430,11 +430,15 @@ class MonitorNode(Node):
         aid = self.get_parameter("actuator_id").value
         if prog.prognosis is not None:
             self._publish(self.pub_rul, C.RUL, cv.rul_msg({"actuator_id": aid, "time_h": prog.time_h, **prog.prognosis}))
-        if self.log is not None and prog.appended:
+        if self.log is not None and (prog.appended or prog.error):
             usage = float(self.get_parameter("usage").value)
-            self.log.add_metadata(HISTORY_META.format(w.id), {
-                "actuator_id": aid, "time_h": repr(prog.time_h), "sim_time_s": repr(w.start / 1e9),
-                "history": str(self.get_parameter("history").value), **({"usage": repr(usage)} if usage >= 0 else {})})
+            where = {"actuator_id": aid, "time_h": repr(prog.time_h), "sim_time_s": repr(w.start / 1e9),
+                     "history": str(self.get_parameter("history").value),
+                     **({"usage": repr(usage)} if usage >= 0 else {})}
+            if prog.appended:
+                self.log.add_metadata(HISTORY_META.format(w.id), where)
+            else:   # the refused test is in the log too, with why (history add of the log may store it)
+                self.log.add_metadata(HISTORY_REFUSED_META.format(w.id), {**where, "error": prog.error})
         return escalate(v, level, why, rul_values(prog))
 
     def _publish_status(self) -> None:
