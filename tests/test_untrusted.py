@@ -158,10 +158,34 @@ def test_out_of_range_parameters_are_refused_through_the_service(nodes, key):
             assert p.name in res.reason or "range" in res.reason, res.reason
             assert node.get_parameter(p.name).value == before
             checked += 1
-        if p.lo is not None:       # the range's own ends are accepted
+        if p.lo is not None and not p.start_only:       # the range's own ends are accepted
             for ok in (p.hi, p.default):
                 assert _set(ex, client_node, node, p.name, type(p.default)(ok)).successful, (p.name, ok)
     assert checked >= 3
+
+
+def test_a_monitor_parameter_read_at_start_only_is_refused_at_run_time(nodes):
+    """Probe 11: set_parameters accepted history, prognostics_settings, next_check_h, warn_p_fail,
+    error_p_fail (successful=True) and they did nothing; a new actuator_id relabelled the status while
+    the tests went on into the old actuator's history. Each such change is refused, naming the
+    parameter; warn_level and operating_hours still take effect at run time."""
+    made, client_node, ex = nodes
+    node = made["monitor"]
+    changes = {"actuator_id": "ACT-2", "history": "other.sqlite", "prognostics_settings": "mine.yaml",
+               "next_check_h": 50.0, "warn_p_fail": 0.2, "error_p_fail": 0.5, "log_path": "x.mcap",
+               "keep_verdicts": 5, "diagnostics_period_s": 2.0, "best_effort": True}
+    for name, value in changes.items():
+        before = node.get_parameter(name).value
+        res = _set(ex, client_node, node, name, value)
+        assert not res.successful and name in res.reason, (name, res.reason)
+        assert node.get_parameter(name).value == before
+        assert node.describe_parameter(name).read_only and "(start only)" in node.describe_parameter(name).description
+    assert set(changes) <= {p.name for p in monitor.PARAMS if p.start_only}
+    for name, value in (("warn_level", 0.25), ("operating_hours", 120.0), ("usage", 3.0)):
+        assert _set(ex, client_node, node, name, value).successful, name
+        assert node.get_parameter(name).value == value
+        assert _set(ex, client_node, node, name, monitor.PARAMS[[p.name for p in monitor.PARAMS].index(name)].default
+                    ).successful
 
 
 def test_a_node_given_an_out_of_range_parameter_at_start_exits_2_with_one_line():

@@ -66,20 +66,23 @@ KEEP_VERDICTS = 1000
 #: this many times in a row at most (then it is reported, refused: the source does not reach us).
 LOST_RETRIES = 3
 
-#: The monitor's parameters (docs/interfaces.md): defaults, units, ranges.
+#: The monitor's parameters (docs/interfaces.md): defaults, units, ranges. ``start_only``: read when the node
+#: starts (the log, the subscriptions, the health history and its prognosis), so a change is refused.
 PARAMS = (
-    Param("actuator_id", "eha", "hardware_id of the diagnostic status"),
+    Param("actuator_id", "eha", "hardware_id of the diagnostic status", start_only=True),
     Param("method", DEFAULT_METHOD, "identification method", choices=tuple(METHODS)),
     Param("fitness", "lsq", "fitness function", choices=tuple(FITNESSES)),
     Param("seed", 0, "seed of the identification (GA)", 0, INT_MAX),
     Param("warn_level", 0.3, "WARN when a coefficient reaches this [-]", 0.0, FAULT_UPPER),
     Param("error_level", 0.7, "ERROR when a coefficient reaches this [-]", 0.0, FAULT_UPPER),
-    Param("log_path", "auto", "MCAP log file; 'auto' = eha_monitor_<date>.mcap in log_dir; '' = no log"),
-    Param("log_dir", ".", "directory of the 'auto' log"),
-    Param("plant_node", "", "simulated runs: node whose k_* parameters are the truth (into MCAP metadata)"),
+    Param("log_path", "auto", "MCAP log file; 'auto' = eha_monitor_<date>.mcap in log_dir; '' = no log",
+          start_only=True),
+    Param("log_dir", ".", "directory of the 'auto' log", start_only=True),
+    Param("plant_node", "", "simulated runs: node whose k_* parameters are the truth (into MCAP metadata)",
+          start_only=True),
     Param("window_timeout_s", WINDOW_TIMEOUT_S,
           "after the end mark, wait for late samples until none has come for this long [s]", 0.05, 600.0),
-    Param("diagnostics_period_s", 1.0, "re-publish the status this often [s]", 0.01, 3600.0),
+    Param("diagnostics_period_s", 1.0, "re-publish the status this often [s]", 0.01, 3600.0, start_only=True),
     Param("exit_after", 0, "stop after this many windows (0: run on)", 0, INT_MAX),
     Param("discrepancy", False, "after each diagnosis run the discrepancy loop; a structured residual -> WARN "
           "'model lacks: ...' (or, when no candidate explains it, WARN that the coefficients may be biased)"),
@@ -87,26 +90,27 @@ PARAMS = (
     Param("max_fill_samples", 0, "fill lost samples of a measured channel by linear interpolation when no gap is "
           "longer than this many samples (and at most 10 % are lost); 0: refuse any gap", 0, 100),
     Param("best_effort", False, "subscribe to the inputs BEST_EFFORT (a lossy link; matches both kinds of "
-          "publisher) instead of RELIABLE"),
-    Param("history", "", "SQLite health history: each diagnosis is appended and the RUL published ('' = none)"),
+          "publisher) instead of RELIABLE", start_only=True),
+    Param("history", "", "SQLite health history: each diagnosis is appended and the RUL published ('' = none)",
+          start_only=True),
     Param("prognostics_settings", "", "YAML merged over data/prognostics.yaml for the prognosis (requirement "
-          "limits, models, fleet prior; '' = the packaged settings)"),
+          "limits, models, fleet prior; '' = the packaged settings)", start_only=True),
     Param("operating_hours", -1.0, "operating hours of the next test in the history [h]; < 0: the window's start "
           "stamp (ROS / simulated time) in hours", -1.0, 1e7),
     Param("usage", -1.0, "usage at the next test (flight hours or cycles; < 0: none)", -1.0, 1e9),
     Param("next_check_h", -1.0, "hours to the next check, for p_fail_next [h] (< 0: prognosis.next_check_h of "
-          "prognostics.yaml)", -1.0, 1e6),
+          "prognostics.yaml)", -1.0, 1e6, start_only=True),
     Param("warn_p_fail", -1.0, "WARN when P(failure before the next check) reaches this (< 0: prognosis.warn_p_fail)",
-          -1.0, 1.0),
+          -1.0, 1.0, start_only=True),
     Param("error_p_fail", -1.0, "ERROR when P(failure before the next check) reaches this (< 0: "
-          "prognosis.error_p_fail)", -1.0, 1.0),
+          "prognosis.error_p_fail)", -1.0, 1.0, start_only=True),
     Param("request_timeout_s", 30.0, "a test asked for whose start mark has not arrived this long after the command "
           "node accepted the request is asked for again [s, wall clock]", 1.0, 3600.0),
     Param("request_tests", 0, "ask the command node (eha/start_test) for this many tests, one after each verdict, "
           "each once every input topic has a matched publisher; one that arrives without any sample of a channel "
           "is asked for again (0: never ask)", 0, INT_MAX),
     Param("keep_verdicts", KEEP_VERDICTS, "latest verdicts kept in memory (each is also in the MCAP log, when there "
-          "is one); 0: all", 0, INT_MAX),
+          "is one); 0: all", 0, INT_MAX, start_only=True),
 )
 
 

@@ -5,6 +5,8 @@ range in the ``ParameterDescriptor`` (``floating_point_range`` / ``integer_range
 itself refuses an out-of-range or NaN value, at start (``--ros-args -p``) and through the
 ``set_parameters`` service alike; a parameter with ``choices`` is checked by a set-parameters
 callback. At start a refused value raises ``ValueError`` (one line; the console script exits 2).
+A ``start_only`` parameter (read once, when the node starts) is declared ``read_only``: rclpy
+refuses a change through ``set_parameters``, naming it, where a change would be accepted and do nothing.
 """
 from __future__ import annotations
 
@@ -27,12 +29,17 @@ class Param:
     lo: float | int | None = None
     hi: float | int | None = None
     choices: tuple[str, ...] = ()
+    start_only: bool = False
+
+    @property
+    def what(self) -> str:
+        return self.doc + (" (start only)" if self.start_only else "")
 
     def descriptor(self) -> ParameterDescriptor:
-        doc = self.doc
+        doc = self.what
         if self.choices:
             doc += " (one of: " + ", ".join(self.choices) + ")"
-        d = ParameterDescriptor(description=doc)
+        d = ParameterDescriptor(description=doc, read_only=self.start_only)
         if self.lo is not None:
             if isinstance(self.default, bool) or not isinstance(self.default, (int, float)):
                 raise TypeError(f"parameter {self.name}: a range needs a numeric default")
@@ -76,5 +83,5 @@ def markdown_table(params: tuple[Param, ...]) -> str:
     rows = ["| parameter | default | range | what |", "|---|---|---|---|"]
     for p in params:
         rng = f"{p.lo:.10g} .. {p.hi:.10g}" if p.lo is not None else " / ".join(p.choices) or "–"
-        rows.append(f"| `{p.name}` | {p.default!r} | {rng} | {p.doc} |")
+        rows.append(f"| `{p.name}` | {p.default!r} | {rng} | {p.what} |")
     return "\n".join(rows)
