@@ -379,3 +379,47 @@ def test_a_new_session_whose_test_collides_with_a_stored_one_is_refused_loudly(t
     tid = res["test_id"]
     assert f"history/test_{tid}" not in meta
     assert "duplicate row" in meta[f"history_refused/test_{tid}"]["error"]
+
+
+@pytest.mark.parametrize("param, value, says", [
+    ("history", "{tmp}", "a directory, not a history file"),
+    ("history", "{tmp}/h.csv", "a HISTORY.csv is read, not written"),
+    ("actuator_id", "", "empty actuator id"),
+    ("actuator_id", " ACT-1", "has leading or trailing spaces"),
+])
+def test_a_monitor_given_a_history_it_cannot_append_to_is_refused_at_start(tmp_path, param, value, says):
+    """Probe 11: these started ("diagnoses appended, RUL on eha/rul") and refused every test. Now
+    the node refuses to start, in one line naming the problem, before it makes a log."""
+    import rclpy
+    from rclpy.parameter import Parameter
+    from rclpy.signals import SignalHandlerOptions
+    from eha_health.ros import teardown
+    from eha_health.ros.monitor import MonitorNode
+    args = {"history": str(tmp_path / "ok.sqlite"), "log_path": str(tmp_path / "mon.mcap"),
+            param: value.format(tmp=tmp_path)}
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        with pytest.raises(ValueError, match=says) as e:
+            node = MonitorNode(context=ctx, parameter_overrides=[Parameter(k, value=v) for k, v in args.items()])
+            teardown(None, [node])
+        assert "\n" not in str(e.value)
+    finally:
+        teardown(None, [], ctx)
+    assert not (tmp_path / "mon.mcap").exists() and not (tmp_path / "ok.sqlite").exists()
+
+
+def test_the_monitor_script_given_a_directory_as_history_exits_2_with_one_line(tmp_path):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = Path(__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root / "src"), str(root)]))
+    # a deadline for a node that would run on (before the fix it started and waited for tests)
+    out = subprocess.run([sys.executable, "-m", "eha_health.ros.monitor", "--ros-args", "-p", f"history:={tmp_path}",
+                          "-p", f"log_path:={tmp_path / 'mon.mcap'}"], env=env, capture_output=True, text=True,
+                         timeout=120)
+    lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
+    assert out.returncode == 2 and len(lines) == 1 and "a directory, not a history file" in lines[0], out.stderr
+    assert not (tmp_path / "mon.mcap").exists()

@@ -65,6 +65,11 @@ class PrognosisStep:
     on_wait: Callable[[str], None] = field(default=lambda m: logging.getLogger(__name__).warning(m), repr=False)
 
     def __post_init__(self):
+        from ..prognostics.records import check_actuator_id
+        from ..prognostics.store import check_writable
+        # refused here, at the node's start, rather than at every test (probe 11)
+        check_writable(Path(self.history))
+        check_actuator_id(self.actuator_id, f"actuator_id for the history {self.history}")
         p = self.settings.prognosis
         self.next_check_h = p.next_check_h if self.next_check_h is None else float(self.next_check_h)
         self.warn_p_fail = p.warn_p_fail if self.warn_p_fail is None else float(self.warn_p_fail)

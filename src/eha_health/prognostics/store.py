@@ -114,6 +114,15 @@ def default_history_path(settings: Settings | None = None) -> Path:
     return Path(env or (settings or load_settings()).history.default_path).expanduser()
 
 
+def check_writable(path: Path) -> None:
+    """Refuse a history path no append can go to, in one line: a ``.csv`` or a directory."""
+    if path.suffix.lower() == ".csv":     # it would be a SQLite file no command reads as one
+        raise PrognosticsError(f"{path}: a HISTORY.csv is read, not written: the history to write "
+                               f"to is a SQLite file (import a CSV into one: eha-health history import)")
+    if path.is_dir():
+        raise PrognosticsError(f"{path}: a directory, not a history file (the SQLite file to write to)")
+
+
 def sha256_file(path: str | Path) -> str:
     h = hashlib.sha256()
     with open(path, "rb") as f:
@@ -145,9 +154,7 @@ class HistoryStore:
         self.readonly = readonly
         self.cancelled, self.on_wait = cancelled, on_wait
         if not readonly:
-            if self.path.suffix.lower() == ".csv":     # it would be a SQLite file no command reads as one
-                raise PrognosticsError(f"{self.path}: a HISTORY.csv is read, not written: the history to write "
-                                       f"to is a SQLite file (import a CSV into one: eha-health history import)")
+            check_writable(self.path)
             try:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
             except OSError as e:    # a read-only filesystem, no permission

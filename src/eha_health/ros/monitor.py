@@ -118,7 +118,7 @@ class MonitorNode(Node):
     def __init__(self, name: str = "eha_monitor", **kw):
         super().__init__(name, **kw)
         declare(self, PARAMS)
-
+        self.prognosis = self._prognosis_step()   # a bad history or setting is refused before a log is made
         self.log = self._open_log()
         self.windows = WindowTracker()
         self._futures: deque = deque()        # diagnoses running in the worker
@@ -133,7 +133,6 @@ class MonitorNode(Node):
 
         self.pub_diag = self.create_publisher(msg_class(C.DIAGNOSTICS), C.DIAGNOSTICS.name, qos(C.DIAGNOSTICS))
         self.pub_health = self.create_publisher(msg_class(C.HEALTH), C.HEALTH.name, qos(C.HEALTH))
-        self.prognosis = self._prognosis_step()
         self.pub_rul = self.create_publisher(msg_class(C.RUL), C.RUL.name, qos(C.RUL)) if self.prognosis else None
         handlers = {C.COMMAND.name: self._on_command, C.JOINT_STATE.name: self._on_joint_state,
                     C.PRESSURE.name: self._on_pressure, C.CURRENT.name: self._on_current,
