@@ -85,6 +85,11 @@ def test_step_appends_prognoses_and_escalates(tmp_path, diagnosis_at_500h):
                            params=load("reference").with_effect_names(["sensor_noise"]), seed=6), method="deterministic")
     bad = step.after_diagnosis(d2, 10.0)
     assert not bad.appended and "out of order" in bad.error and bad.prognosis is not None and count(db) == 10
+    # the RUL is the stored history's: it counts from the latest stored test, not from the refused one
+    # (probe 11: time_h + rul_median_h was off by the difference)
+    assert out.rul_time_h == last + 180.0 and vals["rul_time_h"] == last + 180.0
+    assert bad.rul_time_h == last + 180.0 and rul_values(bad)["rul_time_h"] == last + 180.0
+    assert rul_values(bad)["operating_time_h"] == 10.0
     # a lenient next check: nothing to warn about
     calm = PrognosisStep(db, "eha", next_check_h=1.0).after_diagnosis(d2, 5.0)
     assert PrognosisStep(db, "eha", next_check_h=1.0).level(calm)[0] == "OK"
@@ -423,3 +428,21 @@ def test_the_monitor_script_given_a_directory_as_history_exits_2_with_one_line(t
     lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
     assert out.returncode == 2 and len(lines) == 1 and "a directory, not a history file" in lines[0], out.stderr
     assert not (tmp_path / "mon.mcap").exists()
+
+
+@pytest.mark.graph
+def test_eha_rul_of_a_refused_test_counts_from_the_latest_stored_one(tmp_path):
+    """A test refused as out of order: eha/rul still gives the stored history's RUL, whose time is
+    that of its latest test (probe 11: it carried the refused test's time, 1000 h off)."""
+    from eha_health.ros.graph import Graph
+    from msg_bridge import contract as C
+    db = tmp_path / "h.sqlite"
+    last = seed_history(db)
+    with Graph(method="deterministic", monitor_params={"history": str(db), "operating_hours": 10.0}) as g:
+        res = g.run_test()
+        got = g.listen(C.RUL, "late_rul")
+        g.spin_until(lambda: got, 120.0, "latched eha/rul")
+    assert not res["prognosis"].appended and "out of order" in res["prognosis"].error and count(db) == 9
+    rul = json.loads(got[-1].data)
+    assert rul["time_h"] == last and rul["test_time_h"] == 10.0
+    assert rul["overall"]["rul_median_h"] == res["prognosis"].prognosis["overall"]["rul_median_h"]

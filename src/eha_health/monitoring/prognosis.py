@@ -17,7 +17,8 @@ what went wrong and the RUL is that of the stored history.
 
 :func:`rul_values` turns the outcome into the ``/diagnostics`` key values (docs/interfaces.md):
 ``rul_median_h``, ``rul_p05_h``, ``rul_p95_h``, ``p_fail_next`` overall and with a ``_gm`` /
-``_fsj`` / ``_bkl`` suffix per fault, ``dominant_fault``, and per fault where the history's checks
+``_fsj`` / ``_bkl`` suffix per fault, ``dominant_fault``, ``rul_time_h`` (the time they count from: the
+actuator's latest stored test, not a refused test's), and per fault where the history's checks
 acted ``unrecorded_repair_h_<f>``, ``outliers_h_<f>``, ``last_test_off_trend_<f>``; :meth:`PrognosisStep.level` the level
 that P(failure before the next check) calls for.
 """
@@ -48,7 +49,8 @@ class Outcome:
     appended: bool
     prognosis: dict | None = None     # {"faults": {gm: F, ...}, "overall": F} of prognose --json
     error: str | None = None          # why the append or the prognosis failed (one line)
-    time_h: float | None = None
+    time_h: float | None = None       # the test's operating time [h]
+    rul_time_h: float | None = None   # the time the RUL counts from: the actuator's latest stored test [h]
 
 
 @dataclass
@@ -117,6 +119,8 @@ class PrognosisStep:
                     if self.actuator_id in hist.actuators:
                         obj = prognose(hist, self.actuator_id, self.next_check_h, self.settings, priors=self._priors)
                         out.prognosis = obj["actuators"][self.actuator_id]
+                        # not this test's time when it was refused: the RUL is the stored history's (probe 11)
+                        out.rul_time_h = float(max(hist.actuators[self.actuator_id].time_h))
             except Cancelled as e:
                 out.error = "; ".join(filter(None, [out.error, f"{e}: the monitor is stopping (`eha-health "
                                                                  f"prognose` gives the stored history's RUL)"]))
@@ -186,6 +190,8 @@ def rul_values(outcome: Outcome | None) -> dict:
     prog = outcome.prognosis
     if prog is None:
         return out
+    if outcome.rul_time_h is not None:
+        out["rul_time_h"] = float(outcome.rul_time_h)
     ov = prog["overall"]
     for k in RUL_FIELDS:
         out[k] = "none" if ov.get(k) is None else float(ov[k])

@@ -432,7 +432,8 @@ class MonitorNode(Node):
             level = "WARN" if level == "OK" else level
         aid = self.get_parameter("actuator_id").value
         if prog.prognosis is not None:
-            self._publish(self.pub_rul, C.RUL, cv.rul_msg({"actuator_id": aid, "time_h": prog.time_h, **prog.prognosis}))
+            self._publish(self.pub_rul, C.RUL, cv.rul_msg({"actuator_id": aid, "time_h": prog.rul_time_h,
+                                                           "test_time_h": prog.time_h, **prog.prognosis}))
         if self.log is not None and (prog.appended or prog.error):
             usage = float(self.get_parameter("usage").value)
             where = {"actuator_id": aid, "time_h": repr(prog.time_h), "sim_time_s": repr(w.start / 1e9),
