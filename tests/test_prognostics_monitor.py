@@ -446,3 +446,39 @@ def test_eha_rul_of_a_refused_test_counts_from_the_latest_stored_one(tmp_path):
     rul = json.loads(got[-1].data)
     assert rul["time_h"] == last and rul["test_time_h"] == 10.0
     assert rul["overall"]["rul_median_h"] == res["prognosis"].prognosis["overall"]["rul_median_h"]
+
+
+@pytest.mark.graph
+def test_a_window_not_diagnosed_after_a_good_test_keeps_the_rul_in_the_status(tmp_path):
+    """Probe 11: after a good test, one window that could not be diagnosed (marks of a test 777
+    with no samples) made /diagnostics drop the RUL while the latched eha/rul still held it. The
+    status says the window was not diagnosed and keeps the RUL and the time it counts from."""
+    from eha_health.ros import msg_class, qos
+    from eha_health.ros.graph import Graph
+    from msg_bridge import contract as C
+    from msg_bridge import convert as cv
+    db = tmp_path / "h.sqlite"
+    last = seed_history(db)
+    params = {"history": str(db), "operating_hours": last + 180.0, "next_check_h": 200.0}
+    with Graph(faults=Faults(k_gm=gm_at(last + 180.0)), method="deterministic", monitor_params=params) as g:
+        seen = g.listen(C.DIAGNOSTICS, "independent_listener")
+        good = g.run_test()
+        assert good["prognosis"].appended and good["prognosis"].prognosis is not None, good["message"]
+        marker = g.nodes[-1]      # the listener node also publishes the bogus marks
+        pub = marker.create_publisher(msg_class(C.TEST_WINDOW), C.TEST_WINDOW.name, qos(C.TEST_WINDOW))
+        g.spin_until(lambda: pub.get_subscription_count() >= 1, 120.0, "marks publisher matched")
+        at = 10_000 * 10**9       # far after the graph's samples: the window has none
+        pub.publish(cv.window_msg(at, "start", 777))
+        pub.publish(cv.window_msg(at + 10**9, "end", 777))
+
+        def status_777():
+            return [st for m in seen for st in m.status
+                    if any(kv.key == "test_id" and kv.value == "777" for kv in st.values)]
+        g.spin_until(status_777, 300.0, "/diagnostics of test 777")
+    st = status_777()[-1]
+    kv = {k.key: k.value for k in st.values}
+    assert "test 777 not diagnosed" in st.message and st.level == bytes([2]) and "error" in kv
+    ov = good["prognosis"].prognosis["overall"]
+    assert float(kv["rul_median_h"]) == pytest.approx(ov["rul_median_h"], rel=1e-5)
+    assert float(kv["rul_time_h"]) == last + 180.0 and kv["dominant_fault"] == "gm"
+    assert "history_appended" not in kv and "P(failure before the next check" in st.message

@@ -41,6 +41,8 @@ NOT_APPENDED = "not appended to the history: "
 
 #: The F fields of ``prognose --json`` the status carries, and the key they become.
 RUL_FIELDS = ("rul_median_h", "rul_p05_h", "rul_p95_h", "p_fail_next")
+#: Key values of :func:`rul_values` about the test itself; the others are the actuator's RUL.
+TEST_KEYS = ("history_appended", "operating_time_h", "history_error")
 
 
 @dataclass

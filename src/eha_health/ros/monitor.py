@@ -47,7 +47,7 @@ from ..io.mcaplog import BagWriter
 from ..io.window import IncompleteWindow, NoSamples
 from ..monitoring.analysis import analyse_window
 from ..monitoring.health import HealthPolicy, Verdict, escalate
-from ..monitoring.prognosis import PrognosisStep, rul_values
+from ..monitoring.prognosis import TEST_KEYS, PrognosisStep, rul_values
 from ..monitoring.windows import WindowTracker
 from ..physics.faults import FAULT_NAMES, FAULT_UPPER
 from ..prognostics.config import load_settings
@@ -130,6 +130,7 @@ class MonitorNode(Node):
         self.bad_messages = 0
         self.received: Counter = Counter()   # messages per input topic
         self._status = Verdict("STALE", "no test window diagnosed yet")
+        self._last_rul = None    # (level, why, key values) of the latest RUL: a window not diagnosed keeps it
 
         self.pub_diag = self.create_publisher(msg_class(C.DIAGNOSTICS), C.DIAGNOSTICS.name, qos(C.DIAGNOSTICS))
         self.pub_health = self.create_publisher(msg_class(C.HEALTH), C.HEALTH.name, qos(C.HEALTH))
@@ -384,12 +385,15 @@ class MonitorNode(Node):
 
     def _report(self, w, d, error: str | None, rep=None, prog=None, incomplete: bool = False) -> None:
         entry = {"test_id": w.id, "start_ns": w.start, "truth": w.truth, "response": w.response, "diagnosis": d}
-        if d is None and incomplete:
-            v = self._policy().incomplete(w.id, error)
-            self.get_logger().warning(v.message)
-        elif d is None:
-            v = self._policy().refused(w.id, error)
-            self.get_logger().error(v.message)
+        if d is None:
+            if incomplete:
+                v = self._policy().incomplete(w.id, error)
+                self.get_logger().warning(v.message)
+            else:
+                v = self._policy().refused(w.id, error)
+                self.get_logger().error(v.message)
+            if self._last_rul is not None:   # the actuator's RUL stands, as on the latched eha/rul (probe 11)
+                v = escalate(v, *self._last_rul)
         else:
             v = self._policy().verdict(w.id, w.start, d, rep, (w.response.meta or {}).get("filled"))
             if rep is not None:
@@ -426,6 +430,8 @@ class MonitorNode(Node):
     def _with_prognosis(self, w, v: Verdict, prog) -> Verdict:
         """The verdict with the RUL key values and level; publish the RUL and log where the test went."""
         level, why = self.prognosis.level(prog)
+        if prog.prognosis is not None:
+            self._last_rul = (level, why, {k: x for k, x in rul_values(prog).items() if k not in TEST_KEYS})
         if prog.error:
             self.get_logger().warning(f"test {w.id}: {prog.error}")
             why = "; ".join(filter(None, [why, prog.error]))
