@@ -195,3 +195,19 @@ def test_a_node_given_an_out_of_range_parameter_at_start_exits_2_with_one_line()
     assert out.returncode == 2
     lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "warn_level" in lines[0] and "range" in lines[0], out.stderr
+
+
+@pytest.mark.parametrize("module, argv", [
+    ("monitor", ["--ros-args", "-p", "actuator_id:=A", "7"]), ("plant", ["--ros-args", "-p", "seed:=1", "7"]),
+    ("command", ["--ros-args", "-p", "rate:=1.0", "7"]), ("replay", ["--ros-args", "-p", "bag:=x.mcap", "7"]),
+    ("monitor", ["7", "--ros-args", "-p", "log_path:=''"]),
+])
+def test_a_node_given_a_stray_argument_exits_2_with_one_line(module, argv):
+    """Probe 11: a stray '7' after --ros-args ended in rclpy's UnknownROSArgsError traceback, rc 1;
+    before --ros-args rclpy ignores it and the node ran without the setting it was meant to be."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]))
+    # a deadline for a node that would run on (the one given '7' before --ros-args did)
+    out = subprocess.run([sys.executable, "-m", f"eha_health.ros.{module}", *argv], env=env, capture_output=True,
+                         text=True, timeout=120)
+    lines = [ln for ln in out.stderr.splitlines() if ln.strip()]
+    assert out.returncode == 2 and len(lines) == 1 and "7" in lines[0] and "argument" in lines[0], out.stderr

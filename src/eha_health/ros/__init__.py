@@ -14,9 +14,10 @@ import importlib
 import sys
 
 import rclpy
-from rclpy._rclpy_pybind11 import RCLError
+from rclpy._rclpy_pybind11 import RCLError, UnknownROSArgsError
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import remove_ros_args
 
 from msg_bridge.contract import Topic
 
@@ -47,11 +48,30 @@ def teardown(executor, nodes, context=None) -> None:
         rclpy.shutdown(context=context)
 
 
+def bad_arguments(argv: list[str]) -> str | None:
+    """Why a node's command line is refused (one line), or None: a node takes ROS arguments only."""
+    try:
+        extra = remove_ros_args(argv)[1:]
+    except UnknownROSArgsError as e:    # rclpy raises it with a traceback from rclpy.init (probe 11)
+        return f"unknown ROS argument(s) {str(e).strip('[]')} after --ros-args (a parameter is -p name:=value)"
+    except RCLError as e:               # unparsable --ros-args
+        return str(e).split(", at ")[0]
+    if extra:   # rclpy would ignore them: a setting meant for the node would silently not apply
+        return (f"unexpected argument(s) {' '.join(extra)}: the node's settings are ROS parameters "
+                f"(--ros-args -p name:=value)")
+    return None
+
+
 def run_node(factory, args=None) -> int:
     """``main`` of a console script: spin one node until Ctrl-C or until it asks to stop.
 
-    Exit codes: 0 done or interrupted, 1 a node's own error, 2 a parameter it refused at start.
+    Exit codes: 0 done or interrupted, 1 a node's own error, 2 an argument or a parameter it refused
+    at start.
     """
+    why = bad_arguments(sys.argv if args is None else list(args))
+    if why:
+        print(f"error: {why}", file=sys.stderr)
+        return 2
     try:
         rclpy.init(args=args)
     except RCLError as e:       # unparsable --ros-args: one line, not a traceback
