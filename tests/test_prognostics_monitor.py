@@ -90,6 +90,8 @@ def test_step_appends_prognoses_and_escalates(tmp_path, diagnosis_at_500h):
     assert out.rul_time_h == last + 180.0 and vals["rul_time_h"] == last + 180.0
     assert bad.rul_time_h == last + 180.0 and rul_values(bad)["rul_time_h"] == last + 180.0
     assert rul_values(bad)["operating_time_h"] == 10.0
+    # the hint names the monitor's knob, not the command line's (probe 11: "goes in with --backfill")
+    assert "operating_hours parameter" in bad.error and "goes in with --backfill" not in bad.error
     # a lenient next check: nothing to warn about
     calm = PrognosisStep(db, "eha", next_check_h=1.0).after_diagnosis(d2, 5.0)
     assert PrognosisStep(db, "eha", next_check_h=1.0).level(calm)[0] == "OK"
@@ -482,3 +484,16 @@ def test_a_window_not_diagnosed_after_a_good_test_keeps_the_rul_in_the_status(tm
     assert float(kv["rul_median_h"]) == pytest.approx(ov["rul_median_h"], rel=1e-5)
     assert float(kv["rul_time_h"]) == last + 180.0 and kv["dominant_fault"] == "gm"
     assert "history_appended" not in kv and "P(failure before the next check" in st.message
+
+
+def test_the_usage_clock_refusal_names_the_monitors_knobs(tmp_path, diagnosis_at_500h):
+    """Probe 11: the monitor said "(history add --usage, or a usage column); or use --clock time",
+    knobs it does not have; its own are the usage parameter and prognostics_settings."""
+    d, r = diagnosis_at_500h
+    db = tmp_path / "h.sqlite"
+    last = seed_history(db)      # no usage
+    step = PrognosisStep(db, "eha", settings=load_settings(overrides={"prognosis": {"clock": "usage"}}))
+    out = step.after_diagnosis(d, last + 180.0, response=r, usage=1000.0)
+    assert out.appended and out.prognosis is None and "the usage clock needs a usage that grows" in out.error
+    assert "usage parameter" in out.error and "prognostics_settings" in out.error
+    assert "--usage" not in out.error and "--clock" not in out.error

@@ -131,6 +131,7 @@ class PrognosisStep:
             except Exception as e:    # noqa: BLE001 -- the test was diagnosed: a failed prognosis must not
                 # read as a failed diagnosis (the node's poll would report the window "not diagnosed")
                 out.error = f"prognosis failed: {type(e).__name__}: {' '.join(str(e).split())[:300]}"
+            out.error = out.error and in_monitor_terms(out.error)
             return out
 
     def level(self, outcome: Outcome) -> tuple[str, str | None]:
@@ -152,6 +153,18 @@ class PrognosisStep:
         if p >= self.warn_p_fail:
             return "WARN", f"{why} >= {self.warn_p_fail:g}"
         return "OK", None
+
+
+def in_monitor_terms(line: str) -> str:
+    """A line of the store or of ``prognose`` with the command-line knobs it names said as the
+    monitor's (probe 11: the monitor has no --backfill, no --usage, no --clock)."""
+    from ..prognostics.clock import USAGE_HINT
+    from ..prognostics.records import BACKFILL_HINT
+    return line.replace(BACKFILL_HINT, "the monitor's operating time is its operating_hours parameter (else the "
+                        "window's stamp in hours); the refused test stays in its MCAP log, which `eha-health history "
+                        "add LOG --actuator ID --time-h T --backfill` stores").replace(
+        USAGE_HINT, "(the monitor's usage parameter, at each test); or prognosis: {clock: time} in its "
+                    "prognostics_settings")
 
 
 def _h(v) -> str:

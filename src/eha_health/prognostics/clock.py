@@ -129,6 +129,10 @@ def on_usage_clock(hist: History, required=None) -> tuple[History, dict[str, Usa
     return out, clocks, dict(refused)
 
 
+#: Where a usage comes from, on the command line (the monitor says its own knobs).
+USAGE_HINT = "(history add --usage, or a usage column); or use --clock time"
+
+
 def _usage_clock(hist: History) -> tuple[History, dict[str, UsageClock], dict[str, str]]:
     """:func:`on_usage_clock` with every actuator that cannot be put on the clock refused."""
     out, clocks, usage, refused = History(), {}, {}, {}
@@ -136,8 +140,8 @@ def _usage_clock(hist: History) -> tuple[History, dict[str, UsageClock], dict[st
         rate, keep = h.usage_per_hour(), h.usage_window()
         missing = keep & ~np.isfinite(h.usage)
         if rate is None or missing.any():
-            refused[a] = (f"actuator {a}: the usage clock needs a usage that grows over at least 2 tests (history "
-                          f"add --usage, or a usage column); or use --clock time" if rate is None else
+            refused[a] = (f"actuator {a}: the usage clock needs a usage that grows over at least 2 tests "
+                          f"{USAGE_HINT}" if rate is None else
                           f"actuator {a}: the usage clock needs a usage at every test of the current unit; the "
                           f"test at time_h={h.time_h[missing][0]:g} has none")
             continue

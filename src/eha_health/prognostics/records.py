@@ -226,6 +226,10 @@ def fill_missing_std(recs: list[HealthRecord], floor: float, repairs=()) -> None
                 r.std = tuple(fill if j == i else v for j, v in enumerate(r.std))
 
 
+#: What an out-of-order refusal says to do, on the command line (the monitor says its own knobs).
+BACKFILL_HINT = "a test older than the latest stored one goes in with --backfill"
+
+
 def check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = None) -> None:
     """Times must increase strictly per actuator within a batch (and after ``latest``). A usage
     that falls is not refused: :func:`usage_fall_notes` says it (a replaced unit's first tests
@@ -241,8 +245,7 @@ def check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = Non
                 raise PrognosticsError(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
                                        f"time_h={r.time_h:g} ({w0})")
             if r.time_h < t0:
-                hint = ("; a test older than the latest stored one goes in with --backfill"
-                        if w0 == "the history" else "")
+                hint = f"; {BACKFILL_HINT}" if w0 == "the history" else ""
                 raise PrognosticsError(f"{where}: times out of order: actuator {r.actuator_id} test at "
                                        f"time_h={r.time_h:g} comes after one at {t0:g} ({w0}){hint}")
         last[r.actuator_id] = (r.time_h, where)
