@@ -149,10 +149,10 @@ def test_monitor_node_appends_and_publishes_the_rul(tmp_path):
         res = g.run_test()
         assert res["prognosis"].appended, res["message"]
 
-        def has_rul():
-            return any(any(kv.key == "rul_median_h" for kv in st.values) for m in seen for st in m.status)
-        g.spin_until(has_rul, 300.0, "/diagnostics with the RUL")
-        st = [st for m in seen for st in m.status if any(kv.key == "rul_median_h" for kv in st.values)][-1]
+        def with_rul():     # the test's (the stored history's RUL, given at start, has no test_id)
+            return [st for m in seen for st in m.status if {"rul_median_h", "test_id"} <= {kv.key for kv in st.values}]
+        g.spin_until(with_rul, 300.0, "/diagnostics with the RUL")
+        st = with_rul()[-1]
         kv = {k.key: k.value for k in st.values}
         got = g.listen(C.RUL, "late_rul")   # a late subscriber still gets the latched prognosis
         g.spin_until(lambda: got, 120.0, "latched eha/rul")
@@ -497,3 +497,59 @@ def test_the_usage_clock_refusal_names_the_monitors_knobs(tmp_path, diagnosis_at
     assert out.appended and out.prognosis is None and "the usage clock needs a usage that grows" in out.error
     assert "usage parameter" in out.error and "prognostics_settings" in out.error
     assert "--usage" not in out.error and "--clock" not in out.error
+
+
+@pytest.mark.graph
+def test_a_restarted_monitor_publishes_the_stored_historys_rul_before_its_first_test(tmp_path):
+    """Probe 11: a monitor started on a history already holding its actuator's tests said "no test
+    window diagnosed yet" and published nothing on eha/rul until its next test. It now prognoses the
+    stored history at start (in its worker) and says where the RUL comes from; an actuator with no
+    stored test stays STALE."""
+    from eha_health.prognostics.rul import prognose
+    from eha_health.ros.graph import Graph
+    from msg_bridge import contract as C
+    db = tmp_path / "h.sqlite"
+    last = seed_history(db)
+    with Graph(method="deterministic", monitor_params={"history": str(db), "next_check_h": 200.0}) as g:
+        seen = g.listen(C.DIAGNOSTICS, "independent_listener")
+
+        def status():
+            return [st for m in seen for st in m.status if any(kv.key == "rul_median_h" for kv in st.values)]
+        g.spin_until(status, 300.0, "/diagnostics with the stored history's RUL")
+        got = g.listen(C.RUL, "late_rul")    # a late subscriber gets it, latched
+        g.spin_until(lambda: got, 120.0, "latched eha/rul")
+        assert g.monitor.verdicts == 0
+    ov = prognose(db, "eha", 200.0)["actuators"]["eha"]["overall"]
+    st = status()[-1]
+    kv = {k.key: k.value for k in st.values}
+    assert st.level == bytes([1])          # WARN: P(fail before the check in 200 h) ~0.11 >= 0.05
+    assert "P(failure before the next check in 200 h)" in st.message
+    assert "no test window diagnosed yet: RUL of the stored history (latest test at 320 h)" in st.message
+    assert float(kv["rul_median_h"]) == pytest.approx(ov["rul_median_h"], rel=1e-5)
+    assert float(kv["rul_time_h"]) == last and "history_appended" not in kv and "test_id" not in kv
+    rul = json.loads(got[-1].data)
+    assert rul["source"] == "stored history" and rul["time_h"] == last and rul["test_time_h"] is None
+    assert rul["overall"]["rul_median_h"] == ov["rul_median_h"] and count(db) == 9
+
+    # another actuator, none of whose tests is stored: as before, nothing until its first test
+    with Graph(method="deterministic", actuator_id="other", monitor_params={"history": str(db)}) as g:
+        seen = g.listen(C.DIAGNOSTICS, "independent_listener")
+        g.spin_until(lambda: g.monitor._stored is None, 300.0, "the start's prognosis done")
+        n = len(seen)
+        g.spin_until(lambda: len(seen) > n, 120.0, "a status after it")
+        assert g.monitor._last_rul is None
+    st = seen[-1].status[0]
+    assert st.level == bytes([3]) and st.message == "no test window diagnosed yet"
+
+
+def test_the_stored_prognosis_of_an_actuator_without_tests_is_none(tmp_path):
+    db = tmp_path / "h.sqlite"
+    last = seed_history(db)
+    out = PrognosisStep(db, "eha").stored()
+    assert out.prognosis is not None and out.rul_time_h == last and not out.appended and out.error is None
+    assert PrognosisStep(db, "other").stored() is None
+    assert PrognosisStep(tmp_path / "new.sqlite", "eha").stored() is None and not (tmp_path / "new.sqlite").exists()
+    stopped = PrognosisStep(db, "eha")
+    stopped.stop()
+    out = stopped.stored()
+    assert out.prognosis is None and out.error.startswith("prognosis skipped") and count(db) == 9

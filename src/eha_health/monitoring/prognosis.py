@@ -10,7 +10,8 @@ actuator of the history fitted) is fitted only when a fault of this actuator tak
 since its onset), and is cached until the rest of the fleet gains a test. :meth:`PrognosisStep.stop`
 (the node shutting down) lets a running step end early: the test is still appended -- unless
 the append waits for another writer's lock: it stops waiting, the test is not appended -- the
-prognosis is skipped or its fleet-prior fit cut short, and the outcome says so. An append that
+prognosis is skipped or its fleet-prior fit cut short, and the outcome says so. At the node's start
+:meth:`PrognosisStep.stored` gives the RUL of the stored history (nothing appended), stopped the same way. An append that
 waits for the lock says so at once (``on_wait``). A bad
 append (times out of order, K out of range, a read-only or unreadable file) never raises: the outcome says
 what went wrong and the RUL is that of the stored history.
@@ -96,11 +97,11 @@ class PrognosisStep:
     def after_diagnosis(self, diagnosis, time_h: float, sim_time_s: float | None = None, response=None,
                         discrepancy: str | None = None, usage: float | None = None) -> Outcome:
         """Append ``diagnosis`` at operating time ``time_h`` [h] (window stamp ``sim_time_s`` [s]), then prognose."""
-        from ..prognostics.rul import prognose
         from ..prognostics.store import HistoryStore, ReadOnlyHistory
         with self._lock:
             out = Outcome(False, time_h=time_h)
-            try:
+
+            def run():
                 try:
                     st = HistoryStore(self.history, self.settings, cancelled=self._stopping.is_set,
                                       on_wait=self.on_wait)
@@ -115,24 +116,49 @@ class PrognosisStep:
                                                             discrepancy=discrepancy)
                     except PrognosticsError as e:   # e.g. times out of order: the stored history stays
                         out.error = f"{NOT_APPENDED}{e}"
-                    if self._stopping.is_set():
-                        raise Cancelled("prognosis skipped")
-                    hist = st.history()
-                    if self.actuator_id in hist.actuators:
-                        obj = prognose(hist, self.actuator_id, self.next_check_h, self.settings, priors=self._priors)
-                        out.prognosis = obj["actuators"][self.actuator_id]
-                        # not this test's time when it was refused: the RUL is the stored history's (probe 11)
-                        out.rul_time_h = float(max(hist.actuators[self.actuator_id].time_h))
-            except Cancelled as e:
-                out.error = "; ".join(filter(None, [out.error, f"{e}: the monitor is stopping (`eha-health "
-                                                                 f"prognose` gives the stored history's RUL)"]))
-            except (PrognosticsError, sqlite3.Error, OSError) as e:   # an unreadable, locked or full history file
-                out.error = str(e) if isinstance(e, PrognosticsError) else f"history {self.history}: {e}"
-            except Exception as e:    # noqa: BLE001 -- the test was diagnosed: a failed prognosis must not
-                # read as a failed diagnosis (the node's poll would report the window "not diagnosed")
-                out.error = f"prognosis failed: {type(e).__name__}: {' '.join(str(e).split())[:300]}"
-            out.error = out.error and in_monitor_terms(out.error)
-            return out
+                    self._prognose(st, out)
+            return self._guarded(out, run)
+
+    def stored(self) -> Outcome | None:
+        """The RUL of the stored history, nothing appended (the monitor's start, before its first
+        test: probe 11); None when the history holds no test of this actuator."""
+        from ..prognostics.store import HistoryStore
+        if not Path(self.history).is_file():
+            return None
+        with self._lock:
+            out = Outcome(False)
+
+            def run():
+                with HistoryStore(self.history, self.settings, readonly=True) as st:
+                    self._prognose(st, out)
+            self._guarded(out, run)
+            return None if out.prognosis is None and out.error is None else out
+
+    def _prognose(self, st, out: Outcome) -> None:
+        from ..prognostics.rul import prognose
+        if self._stopping.is_set():
+            raise Cancelled("prognosis skipped")
+        hist = st.history()
+        if self.actuator_id in hist.actuators:
+            obj = prognose(hist, self.actuator_id, self.next_check_h, self.settings, priors=self._priors)
+            out.prognosis = obj["actuators"][self.actuator_id]
+            # not this test's time when it was refused: the RUL is the stored history's (probe 11)
+            out.rul_time_h = float(max(hist.actuators[self.actuator_id].time_h))
+
+    def _guarded(self, out: Outcome, run: Callable[[], None]) -> Outcome:
+        """``run()``, whatever goes wrong said in ``out.error`` (never raised)."""
+        try:
+            run()
+        except Cancelled as e:
+            out.error = "; ".join(filter(None, [out.error, f"{e}: the monitor is stopping (`eha-health "
+                                                             f"prognose` gives the stored history's RUL)"]))
+        except (PrognosticsError, sqlite3.Error, OSError) as e:   # an unreadable, locked or full history file
+            out.error = str(e) if isinstance(e, PrognosticsError) else f"history {self.history}: {e}"
+        except Exception as e:    # noqa: BLE001 -- the test was diagnosed: a failed prognosis must not
+            # read as a failed diagnosis (the node's poll would report the window "not diagnosed")
+            out.error = f"prognosis failed: {type(e).__name__}: {' '.join(str(e).split())[:300]}"
+        out.error = out.error and in_monitor_terms(out.error)
+        return out
 
     def level(self, outcome: Outcome) -> tuple[str, str | None]:
         """OK / WARN / ERROR from P(failure before the next check) overall, and why."""

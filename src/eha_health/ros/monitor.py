@@ -12,7 +12,8 @@ With a ``history`` file, each diagnosis is appended to that SQLite health histor
 operating time (``operating_hours``, else the window's ROS / simulated start stamp in hours)
 and the actuator's remaining useful life follows (:mod:`eha_health.monitoring.prognosis`, in
 the same worker thread): its key values join the status, P(failure before the next check)
-raises it to WARN / ERROR at ``warn_p_fail`` / ``error_p_fail``, and ``eha/rul`` carries it.
+raises it to WARN / ERROR at ``warn_p_fail`` / ``error_p_fail``, and ``eha/rul`` carries it. A history
+already holding tests of ``actuator_id`` gives its RUL at start, before the first test.
 
 Outputs (each also written to the log as published): ``/diagnostics`` (one status per actuator, re-published every
 ``diagnostics_period_s``; levels from ``warn_level`` / ``error_level`` on the
@@ -124,6 +125,8 @@ class MonitorNode(Node):
         self._futures: deque = deque()        # diagnoses running in the worker
         self._closing = False
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eha-diagnose")
+        # the stored history's RUL, published before the first test (a restarted monitor gave none: probe 11)
+        self._stored = self._worker.submit(self.prognosis.stored) if self.prognosis is not None else None
         keep = int(self.get_parameter("keep_verdicts").value)
         self.results: deque[dict] = deque(maxlen=keep or None)   # the latest verdicts, oldest first
         self.verdicts = 0                                        # verdicts given since the start
@@ -265,7 +268,30 @@ class MonitorNode(Node):
         self._maybe_request_test()
         for w in self.windows.ready(time.monotonic(), float(self.get_parameter("window_timeout_s").value)):
             self._start_diagnosis(w)
+        self._collect_stored()
         self._collect()
+
+    def _collect_stored(self) -> None:
+        """Publish the stored history's RUL once the worker has it (it runs before any diagnosis)."""
+        f = self._stored
+        if f is None or not f.done():
+            return
+        self._stored = None
+        out = None if f.cancelled() else f.result()   # stored() never raises
+        if out is None or self.verdicts:   # no test of this actuator stored; or a test's RUL came first
+            return
+        if out.prognosis is None:
+            self.get_logger().warning(f"the stored history gives no RUL: {out.error}")
+            return
+        level, why = self.prognosis.level(out)
+        values = {k: x for k, x in rul_values(out).items() if k not in TEST_KEYS}
+        self._last_rul = (level, why, values)
+        self._publish_rul(out, "stored history")
+        said = f"no test window diagnosed yet: RUL of the stored history (latest test at {out.rul_time_h:g} h)"
+        self._status = Verdict(level, f"{why}; {said}" if why else said, values)
+        self._publish_status()
+        if self.log is not None:
+            self.log.flush()
 
     def _collect(self) -> None:
         """Report the diagnoses the worker has finished, in test order."""
@@ -438,8 +464,7 @@ class MonitorNode(Node):
             level = "WARN" if level == "OK" else level
         aid = self.get_parameter("actuator_id").value
         if prog.prognosis is not None:
-            self._publish(self.pub_rul, C.RUL, cv.rul_msg({"actuator_id": aid, "time_h": prog.rul_time_h,
-                                                           "test_time_h": prog.time_h, **prog.prognosis}))
+            self._publish_rul(prog, "test")
         if self.log is not None and (prog.appended or prog.error):
             usage = float(self.get_parameter("usage").value)
             where = {"actuator_id": aid, "time_h": repr(prog.time_h), "sim_time_s": repr(w.start / 1e9),
@@ -450,6 +475,11 @@ class MonitorNode(Node):
             else:   # the refused test is in the log too, with why (history add of the log may store it)
                 self.log.add_metadata(HISTORY_REFUSED_META.format(w.id), {**where, "error": prog.error})
         return escalate(v, level, why, rul_values(prog))
+
+    def _publish_rul(self, prog, source: str) -> None:
+        self._publish(self.pub_rul, C.RUL, cv.rul_msg({
+            "actuator_id": self.get_parameter("actuator_id").value, "source": source, "time_h": prog.rul_time_h,
+            "test_time_h": prog.time_h, **prog.prognosis}))
 
     def _publish_status(self) -> None:
         v = self._status
@@ -481,7 +511,7 @@ class MonitorNode(Node):
     def close(self) -> None:
         """Stop the worker, report what it finished and close the log (writes its summary).
 
-        A running prognosis ends early (its test is appended; the fleet-prior fit, up to ~20 s on
+        A running prognosis (of a test, or the stored history's at start) ends early (its test is appended; the fleet-prior fit, up to ~20 s on
         a 1000-actuator history, is cut short); the running diagnosis finishes and goes into the
         log; windows not yet started are dropped (their samples are in the log)."""
         if self.prognosis is not None:
