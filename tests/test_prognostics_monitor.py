@@ -214,6 +214,8 @@ def test_a_lower_bound_on_p_fail_escalates_and_is_published(tmp_path):
     out = Outcome(True, {"faults": {f: dict(F) for f in FAULT_KEYS}, "overall": ov}, time_h=10.0)
     level, why = step.level(out)
     assert level == "ERROR" and ">= 0.300" in why
+    # one comparison: the level's threshold in words (probe 11: ">= 0.300 (...) >= 0.2")
+    assert why.count(">=") == 1 and why.endswith("at or above the ERROR level 0.2")
     kv = rul_values(out)
     assert kv["p_fail_next"] == "none" and kv["p_fail_next_min"] == 0.3 and kv["p_fail_next_min_gm"] == 0.3
 
@@ -237,6 +239,9 @@ def test_a_warning_from_one_test_off_its_trend_says_to_test_again(tmp_path):
     level, why = step.level(Outcome(True, prog))
     assert level == "WARN", (level, prog["overall"])
     assert "the last gm test is off its trend" in why and "test again" in why
+    # the threshold follows the probability it judges, not "test again" (probe 11: "test again >= 0.05")
+    assert why.endswith(": test again") and ">=" not in why.split(";")[1]
+    assert why.split(";")[0].endswith("), at or above the WARN level 0.05")
 
 
 def test_step_on_the_usage_clock(tmp_path, diagnosis_at_500h):

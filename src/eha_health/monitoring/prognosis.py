@@ -168,17 +168,22 @@ class PrognosisStep:
             p, rel = ov["p_fail_next_min"], ">="     # the next check lies beyond the prediction horizon
         if p is None:
             return "OK", None
+        if p >= self.error_p_fail:
+            level, at = "ERROR", self.error_p_fail
+        elif p >= self.warn_p_fail:
+            level, at = "WARN", self.warn_p_fail
+        else:
+            return "OK", None
+        # the level's threshold in words, right after the number it judges: "(...) >= 0.2; ... test again
+        # >= 0.2" and ">= 0.503 ... >= 0.2" misread (probe 11)
         why = (f"P(failure before the next check in {self.next_check_h:g} h) {rel} {p:.3f}"
-               f" (dominant {ov.get('dominant_fault')}, RUL median {_h(ov.get('rul_median_h'))})")
+               f" (dominant {ov.get('dominant_fault')}, RUL median {_h(ov.get('rul_median_h'))}),"
+               f" at or above the {level} level {at:g}")
         off = [f for f, F in (outcome.prognosis or {}).get("faults", {}).items() if F.get("last_test_off_trend")]
         if off:   # half of that probability is a single test: what to do next is to test again
             why += (f"; the last {'/'.join(off)} test is off its trend (a failed diagnosis, or wear that "
                     f"jumped): test again")
-        if p >= self.error_p_fail:
-            return "ERROR", f"{why} >= {self.error_p_fail:g}"
-        if p >= self.warn_p_fail:
-            return "WARN", f"{why} >= {self.warn_p_fail:g}"
-        return "OK", None
+        return level, why
 
 
 def in_monitor_terms(line: str) -> str:
