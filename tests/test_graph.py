@@ -289,3 +289,29 @@ def test_start_test_is_refused_until_a_plant_is_matched():
         assert node.tests_started == 0
     finally:
         teardown(None, [node], ctx)
+
+
+def test_a_stop_while_a_tests_samples_arrive_warns_that_the_window_is_dropped(tmp_path, capfd):
+    """Probe 11: a monitor stopped (Ctrl-C; run_node's teardown calls the same close) with a test's
+    samples still arriving dropped its window without a word, though the docs promise a warning.
+    The window is dropped with a warning naming the test; its samples are in the log."""
+    log = tmp_path / "mon.mcap"
+    g = Graph(rate=1.0, method="deterministic", log_path=log)
+    try:
+        g._wait_truth_service()
+        ok, why = g.command.start_test()
+        assert ok, why
+        mon = g.monitor
+
+        def streaming():   # the start mark is in, no end mark, and samples of the test are arriving
+            ws = [w for w in mon.windows.windows.values() if w.start is not None and w.end is None]
+            return ws and mon.windows.last["command"] >= ws[0].start + 100 * 10**6
+        g.spin_until(streaming, 600.0, "the test streaming in")
+        tid = next(iter(mon.windows.windows))
+    finally:
+        g.close()
+    err = capfd.readouterr().err
+    assert (f"test {tid}: not diagnosed, the monitor stopped while its samples were still arriving (no end "
+            f"mark); the samples that came are in the log") in err, err[-2000:]
+    bag = read_bag(log)
+    assert len(bag.messages["/eha/command"]) >= 100 and not any(k.startswith("diagnosis/") for k in bag.metadata)

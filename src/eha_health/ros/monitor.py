@@ -300,6 +300,7 @@ class MonitorNode(Node):
             if fut.cancelled():     # the node stopped before it started
                 self.get_logger().warning(f"test {w.id}: not diagnosed, the monitor stopped first "
                                           f"(its samples are in the log: `eha-health history add` takes it)")
+                self.windows.forget(w.id)
                 continue
             try:
                 d, rep, prog = fut.result()
@@ -513,12 +514,19 @@ class MonitorNode(Node):
 
         A running prognosis (of a test, or the stored history's at start) ends early (its test is appended; the fleet-prior fit, up to ~20 s on
         a 1000-actuator history, is cut short); the running diagnosis finishes and goes into the
-        log; windows not yet started are dropped (their samples are in the log)."""
+        log; windows not yet started are dropped with a warning (their samples are in the log), so is
+        a window cut off by the stop (its samples still arriving)."""
         if self.prognosis is not None:
             self.prognosis.stop()
         self._worker.shutdown(wait=True, cancel_futures=True)
         self._closing = True
         self._collect()
+        for w in list(self.windows.windows.values()):   # never queued for a diagnosis: cut off (probe 11)
+            why = ("its samples were still arriving (no end mark)" if w.end is None else
+                   "it waited for its last samples" if w.start is not None else "it had an end mark only")
+            self.get_logger().warning(f"test {w.id}: not diagnosed, the monitor stopped while {why}; the samples "
+                                      f"that came are in the log")
+            self.windows.forget(w.id)
         if self.log is not None:
             self.log.close()
             self.log = None
