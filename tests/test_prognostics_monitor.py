@@ -438,20 +438,26 @@ def test_the_monitor_script_given_a_directory_as_history_exits_2_with_one_line(t
 
 
 @pytest.mark.graph
-def test_eha_rul_of_a_refused_test_counts_from_the_latest_stored_one(tmp_path):
+def test_eha_rul_of_a_refused_test_counts_from_the_latest_stored_one(tmp_path, monkeypatch):
     """A test refused as out of order: eha/rul still gives the stored history's RUL, whose time is
-    that of its latest test (probe 11: it carried the refused test's time, 1000 h off)."""
+    that of its latest test (probe 11: it carried the refused test's time, 1000 h off). The log's
+    metadata names the history by its absolute path though it was given relative (probe 11)."""
+    from eha_health.io.mcaplog import read_bag
     from eha_health.ros.graph import Graph
     from msg_bridge import contract as C
     db = tmp_path / "h.sqlite"
     last = seed_history(db)
-    with Graph(method="deterministic", monitor_params={"history": str(db), "operating_hours": 10.0}) as g:
+    monkeypatch.chdir(tmp_path)
+    with Graph(method="deterministic", log_path="mon.mcap",
+               monitor_params={"history": "h.sqlite", "operating_hours": 10.0}) as g:
         res = g.run_test()
         got = g.listen(C.RUL, "late_rul")
         g.spin_until(lambda: got, 120.0, "latched eha/rul")
     assert not res["prognosis"].appended and "out of order" in res["prognosis"].error and count(db) == 9
     rul = json.loads(got[-1].data)
-    assert rul["time_h"] == last and rul["test_time_h"] == 10.0
+    assert rul["time_h"] == last and rul["test_time_h"] == 10.0 and rul["source"] == "test"
+    assert read_bag(tmp_path / "mon.mcap", topics=[]).metadata[f"history_refused/test_{res['test_id']}"][
+        "history"] == str(db)
     assert rul["overall"]["rul_median_h"] == res["prognosis"].prognosis["overall"]["rul_median_h"]
 
 
@@ -534,6 +540,7 @@ def test_a_restarted_monitor_publishes_the_stored_historys_rul_before_its_first_
     assert float(kv["rul_time_h"]) == last and "history_appended" not in kv and "test_id" not in kv
     rul = json.loads(got[-1].data)
     assert rul["source"] == "stored history" and rul["time_h"] == last and rul["test_time_h"] is None
+    assert rul["next_check_h"] == 200.0     # which horizon p_fail_next is over (probe 11: not said)
     assert rul["overall"]["rul_median_h"] == ov["rul_median_h"] and count(db) == 9
 
     # another actuator, none of whose tests is stored: as before, nothing until its first test

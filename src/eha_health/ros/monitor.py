@@ -99,12 +99,13 @@ PARAMS = (
     Param("operating_hours", -1.0, "operating hours of the next test in the history [h]; < 0: the window's start "
           "stamp (ROS / simulated time) in hours", -1.0, 1e7),
     Param("usage", -1.0, "usage at the next test (flight hours or cycles; < 0: none)", -1.0, 1e9),
-    Param("next_check_h", -1.0, "hours to the next check, for p_fail_next [h] (< 0: prognosis.next_check_h of "
-          "prognostics.yaml)", -1.0, 1e6, start_only=True),
-    Param("warn_p_fail", -1.0, "WARN when P(failure before the next check) reaches this (< 0: prognosis.warn_p_fail)",
-          -1.0, 1.0, start_only=True),
-    Param("error_p_fail", -1.0, "ERROR when P(failure before the next check) reaches this (< 0: "
-          "prognosis.error_p_fail)", -1.0, 1.0, start_only=True),
+    # the declared ranges hold the "< 0: default" sentinel; 0 is refused at start (probe 11), which the text says
+    Param("next_check_h", -1.0, "hours to the next check, for p_fail_next [h]: > 0 (< 0: prognosis.next_check_h "
+          "of prognostics.yaml; 0 is refused)", -1.0, 1e6, start_only=True),
+    Param("warn_p_fail", -1.0, "WARN when P(failure before the next check) reaches this: 0 < value <= error_p_fail "
+          "(< 0: prognosis.warn_p_fail; 0 is refused)", -1.0, 1.0, start_only=True),
+    Param("error_p_fail", -1.0, "ERROR when P(failure before the next check) reaches this: warn_p_fail <= value "
+          "<= 1 (< 0: prognosis.error_p_fail; 0 is refused)", -1.0, 1.0, start_only=True),
     Param("request_timeout_s", 30.0, "a test asked for whose start mark has not arrived this long after the command "
           "node accepted the request is asked for again [s, wall clock]", 1.0, 3600.0),
     Param("request_tests", 0, "ask the command node (eha/start_test) for this many tests, one after each verdict, "
@@ -469,7 +470,8 @@ class MonitorNode(Node):
         if self.log is not None and (prog.appended or prog.error):
             usage = float(self.get_parameter("usage").value)
             where = {"actuator_id": aid, "time_h": repr(prog.time_h), "sim_time_s": repr(w.start / 1e9),
-                     "history": str(self.get_parameter("history").value),
+                     # absolute: `history add` of the log may run from another folder (probe 11)
+                     "history": str(Path(self.get_parameter("history").value).absolute()),
                      **({"usage": repr(usage)} if usage >= 0 else {})}
             if prog.appended:
                 self.log.add_metadata(HISTORY_META.format(w.id), where)
@@ -480,7 +482,7 @@ class MonitorNode(Node):
     def _publish_rul(self, prog, source: str) -> None:
         self._publish(self.pub_rul, C.RUL, cv.rul_msg({
             "actuator_id": self.get_parameter("actuator_id").value, "source": source, "time_h": prog.rul_time_h,
-            "test_time_h": prog.time_h, **prog.prognosis}))
+            "test_time_h": prog.time_h, "next_check_h": self.prognosis.next_check_h, **prog.prognosis}))
 
     def _publish_status(self) -> None:
         v = self._status
