@@ -46,6 +46,40 @@ def count(db):
         con.close()
 
 
+def young_among_a_fleet(tmp_path, monkeypatch):
+    """A history: eha with a young gm trend (2 points since its onset at 100 h: it takes the fleet
+    prior) among 24 synthetic actuators, whose prior is fitted 4 at a time."""
+    from eha_health.bench.rul import synthetic_history_csv
+    from eha_health.prognostics import prior_cache
+    monkeypatch.setattr(prior_cache, "BATCH", 4)
+    db = tmp_path / "h.sqlite"
+    seed_history(db, n=5)
+    with HistoryStore(db) as st:
+        st.import_csv(synthetic_history_csv(tmp_path / "fleet.csv", 24, n_tests=12, seed=4))
+    return db
+
+
+def stopped_in_the_prior_fit(step, run):
+    """``run()`` in another thread, ``step.stop()`` once it asks whether to go on with the fleet prior; its result."""
+    import threading
+    asked, stopped = threading.Event(), threading.Event()
+    own = step._priors.cancelled
+
+    def ask():                  # the first ask waits until the test has stopped the step
+        asked.set()
+        stopped.wait(300)
+        return own()
+    step._priors.cancelled = ask
+    got = {}
+    worker = threading.Thread(target=lambda: got.update(out=run()))
+    worker.start()
+    assert asked.wait(600), "the step never started the fleet prior"
+    step.stop()
+    stopped.set()
+    worker.join(600)
+    return got["out"]
+
+
 @pytest.fixture(scope="module")
 def diagnosis_at_500h():
     p = load("reference").with_effect_names(["sensor_noise"])
@@ -274,31 +308,9 @@ def test_a_stopped_step_appends_its_test_and_cuts_the_fleet_prior_fit_short(tmp_
     fleet prior of a shared history (a young actuator takes it). The test is appended, the fit ends
     at its next batch, the outcome says why there is no RUL. Before 2026-11-29 the shutdown waited
     for the whole fit (about 20 s on 1000 actuators) and the node could be killed mid-way."""
-    import threading
-    from eha_health.bench.rul import synthetic_history_csv
-    from eha_health.prognostics import prior_cache
-    monkeypatch.setattr(prior_cache, "BATCH", 4)
-    db = tmp_path / "h.sqlite"
-    seed_history(db, n=5)       # gm rising from 100 h: a young trend (2 points since its onset)
-    with HistoryStore(db) as st:
-        st.import_csv(synthetic_history_csv(tmp_path / "fleet.csv", 24, n_tests=12, seed=4))
+    db = young_among_a_fleet(tmp_path, monkeypatch)
     step = PrognosisStep(db, "eha", next_check_h=50.0)
-    asked, stopped = threading.Event(), threading.Event()
-    own = step._priors.cancelled
-
-    def ask():                  # the first ask waits until the test has stopped the step
-        asked.set()
-        stopped.wait(300)
-        return own()
-    step._priors.cancelled = ask
-    got = {}
-    worker = threading.Thread(target=lambda: got.update(out=step.after_diagnosis(diagnosis_at_500h[0], 200.0)))
-    worker.start()
-    assert asked.wait(600), "the step never started the fleet prior"
-    step.stop()
-    stopped.set()
-    worker.join(600)
-    out = got["out"]
+    out = stopped_in_the_prior_fit(step, lambda: step.after_diagnosis(diagnosis_at_500h[0], 200.0))
     assert out.appended and out.prognosis is None and count(db) == 5 + 24 * 12 + 1
     assert "fleet prior stopped after 0 of" in out.error and "the monitor is stopping" in out.error
     assert rul_values(out)["history_error"] == out.error
@@ -565,3 +577,13 @@ def test_the_stored_prognosis_of_an_actuator_without_tests_is_none(tmp_path):
     stopped.stop()
     out = stopped.stored()
     assert out.prognosis is None and out.error.startswith("prognosis skipped") and count(db) == 9
+
+
+def test_the_start_prognosis_is_cut_short_by_a_stop_as_a_tests_is(tmp_path, monkeypatch):
+    """The stored history's RUL at the monitor's start fits the fleet prior when a young actuator
+    takes it; a stop (the node's shutdown) from another thread ends the fit at its next batch."""
+    db = young_among_a_fleet(tmp_path, monkeypatch)
+    before = count(db)
+    step = PrognosisStep(db, "eha", next_check_h=50.0)
+    out = stopped_in_the_prior_fit(step, step.stored)
+    assert out.prognosis is None and "fleet prior stopped after 0 of" in out.error and count(db) == before
