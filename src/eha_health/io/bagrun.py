@@ -42,6 +42,8 @@ HISTORY_META = "history/test_{}"
 #: Metadata record of a diagnosed test the history refused (``actuator_id``, ``time_h``, ``sim_time_s``,
 #: ``history``, ``error``: why; e.g. another diagnosis stored at that time): not read back as appended.
 HISTORY_REFUSED_META = "history_refused/test_{}"
+#: a window the monitor stopped before it could diagnose it (its samples still arriving), and why
+DROPPED_META = "dropped/test_{}"
 
 
 def history_times(path: str | Path, test_id: int | None) -> dict[str, float]:

@@ -43,7 +43,7 @@ from msg_bridge import convert as cv
 from ..discrepancy.settings import DEFAULT_MAX_EFFECTS
 from ..identification.diagnose import DEFAULT_METHOD, METHODS
 from ..identification.fitness import FITNESSES
-from ..io.bagrun import HISTORY_META, HISTORY_REFUSED_META
+from ..io.bagrun import DROPPED_META, HISTORY_META, HISTORY_REFUSED_META
 from ..io.mcaplog import BagWriter
 from ..io.window import IncompleteWindow, NoSamples
 from ..monitoring.analysis import analyse_window
@@ -528,6 +528,8 @@ class MonitorNode(Node):
                    "it waited for its last samples" if w.start is not None else "it had an end mark only")
             self.get_logger().warning(f"test {w.id}: not diagnosed, the monitor stopped while {why}; the samples "
                                       f"that came are in the log")
+            if self.log is not None:   # said in the log too: a reader of it later sees why the test has no verdict
+                self.log.add_metadata(DROPPED_META.format(w.id), {"reason": f"the monitor stopped while {why}"})
             self.windows.forget(w.id)
         if self.log is not None:
             self.log.close()
