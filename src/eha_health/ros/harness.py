@@ -75,4 +75,8 @@ class NodeHarness:
         mon._poll()
 
     def close(self) -> None:
+        # a logger's level is global to the process, by name: left at FATAL it silenced every later
+        # monitor's warnings in the same process (the full test suite, after the fuzzing of messages)
+        for n in (self.monitor, self.plant):
+            n.get_logger().set_level(LoggingSeverity.UNSET)
         teardown(None, [self.monitor, self.plant], self.ctx)
