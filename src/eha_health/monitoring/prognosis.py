@@ -264,3 +264,9 @@ def rul_values(outcome: Outcome | None) -> dict:
         if F.get("last_test_off_trend"):
             out[f"last_test_off_trend_{f}"] = True
     return out
+
+
+def actuator_rul_values(outcome: Outcome) -> dict:
+    """:func:`rul_values` of the actuator's RUL alone, without the keys about the test
+    (:data:`TEST_KEYS`): what a status keeps when a later window is not diagnosed."""
+    return {k: x for k, x in rul_values(outcome).items() if k not in TEST_KEYS}

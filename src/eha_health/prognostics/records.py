@@ -169,7 +169,7 @@ def superseded_notes(stored: list[tuple], new: list, shown: int = 5) -> list[str
         log = logs.get(m.actuator_id, [])
         if (m.time_h, m.fault) in log:
             continue                                  # already stored: not imported again
-        faults = ("gm", "fsj", "bkl") if m.fault == "all" else (m.fault,)
+        faults = FAULT_KEYS if m.fault == "all" else (m.fault,)
         later = {f: trend_start_h(log, f) for f in faults}
         later = {f: t for f, t in later.items() if t is not None and t > m.time_h}
         if later:

@@ -153,6 +153,7 @@ class HistoryStore:
         self.path = Path(path) if path is not None else default_history_path(self.settings)
         self.readonly = readonly
         self.cancelled, self.on_wait = cancelled, on_wait
+        self._said_wait = False   # on_wait hears of a wait once
         if not readonly:
             check_writable(self.path)
             try:
@@ -213,9 +214,7 @@ class HistoryStore:
         locks, no ``-shm``) -- no writer can create the ``-shm`` there either, so none is running."""
         conn = sqlite3.connect(str(self.path), timeout=BUSY_TIMEOUT_S, isolation_level=None)
         try:
-            # text the store did not write (a damaged page) must not raise mid-query
-            conn.text_factory = lambda b: b.decode("utf-8", "replace")
-            return conn, conn.execute("PRAGMA user_version").fetchone()[0]
+            return conn, _user_version(conn)
         except sqlite3.OperationalError as e:
             conn.close()
             if not self.readonly or self._read_only(e) is None or not self.path.is_file():
@@ -227,8 +226,7 @@ class HistoryStore:
                                   f"{self.path.name}-shm): copy the file and its {wal.name} to a writable folder")
         conn = sqlite3.connect(f"file:{urllib.parse.quote(str(self.path.resolve()))}?immutable=1", uri=True,
                                isolation_level=None)
-        conn.text_factory = lambda b: b.decode("utf-8", "replace")
-        return conn, conn.execute("PRAGMA user_version").fetchone()[0]
+        return conn, _user_version(conn)
 
     def _read_only(self, e: sqlite3.OperationalError) -> "ReadOnlyHistory | None":
         """A file SQLite cannot open or write because it or its folder is read-only, as one line
@@ -297,7 +295,7 @@ class HistoryStore:
         if self.cancelled is not None and self.cancelled():
             raise LockWaitStopped(f"{self.path}: the history is locked by another process, and the wait for it "
                                   f"was stopped; nothing written")
-        if self.on_wait is not None and not getattr(self, "_said_wait", False):
+        if self.on_wait is not None and not self._said_wait:
             self._said_wait = True
             self.on_wait(f"{self.path}: the history is locked by another process: waiting for it (up to "
                          f"{BUSY_TIMEOUT_S:g} s)")
@@ -671,6 +669,13 @@ class HistoryStore:
                     self.conn.execute(q)]
             reps = list(self.conn.execute("SELECT actuator_id, time_h, fault, action FROM maintenance"))
         return history_from_records(recs, reps, self.settings.history.default_std)
+
+
+def _user_version(conn: sqlite3.Connection) -> int:
+    """The file's ``user_version``, on a connection that decodes text it did not write (a damaged
+    page) with replacement characters instead of raising mid-query."""
+    conn.text_factory = lambda b: b.decode("utf-8", "replace")
+    return conn.execute("PRAGMA user_version").fetchone()[0]
 
 
 class LockWaitStopped(PrognosticsError):

@@ -105,7 +105,7 @@ def launch(faults: Faults = Faults(), effects=(), seed: int = 0, tests: int = 1,
     hist = None
     if history and log_path.exists():   # the monitor's statuses are in its log
         hist = history_summary(history, actuator_id, logged_history_outcomes(log_path),
-                               _HOURS_HINT if operating_hours is None else None)
+                               HOURS_HINT if operating_hours is None else None)
     summary = (results_summary(results) + (f"\n{hist['line']}" if hist else "") + f"\nlog: {log_path}"
                + ("" if ok else f"\nlaunch: FAILED ({len(results)}/{tests} tests diagnosed)"))
     return {"ok": ok, "results": results, "log": str(log_path), "summary": summary, "history": hist,
@@ -113,7 +113,7 @@ def launch(faults: Faults = Faults(), effects=(), seed: int = 0, tests: int = 1,
 
 
 #: Said with a refused append of a run without ``operating_hours``.
-_HOURS_HINT = ("each test's time was its simulated stamp in hours; --operating-hours H gives a run of one test "
+HOURS_HINT = ("each test's time was its simulated stamp in hours; --operating-hours H gives a run of one test "
                "its operating time")
 
 

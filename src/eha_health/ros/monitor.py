@@ -48,7 +48,7 @@ from ..io.mcaplog import BagWriter
 from ..io.window import IncompleteWindow, NoSamples
 from ..monitoring.analysis import analyse_window
 from ..monitoring.health import HealthPolicy, Verdict, escalate
-from ..monitoring.prognosis import TEST_KEYS, PrognosisStep, rul_values
+from ..monitoring.prognosis import PrognosisStep, actuator_rul_values, rul_values
 from ..monitoring.windows import WindowTracker
 from ..physics.faults import FAULT_NAMES, FAULT_UPPER
 from ..prognostics.config import load_settings
@@ -285,7 +285,7 @@ class MonitorNode(Node):
             self.get_logger().warning(f"the stored history gives no RUL: {out.error}")
             return
         level, why = self.prognosis.level(out)
-        values = {k: x for k, x in rul_values(out).items() if k not in TEST_KEYS}
+        values = actuator_rul_values(out)
         self._last_rul = (level, why, values)
         self._publish_rul(out, "stored history")
         said = f"no test window diagnosed yet: RUL of the stored history (latest test at {out.rul_time_h:g} h)"
@@ -459,7 +459,7 @@ class MonitorNode(Node):
         """The verdict with the RUL key values and level; publish the RUL and log where the test went."""
         level, why = self.prognosis.level(prog)
         if prog.prognosis is not None:
-            self._last_rul = (level, why, {k: x for k, x in rul_values(prog).items() if k not in TEST_KEYS})
+            self._last_rul = (level, why, actuator_rul_values(prog))
         if prog.error:
             self.get_logger().warning(f"test {w.id}: {prog.error}")
             why = "; ".join(filter(None, [why, prog.error]))

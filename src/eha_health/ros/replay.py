@@ -26,7 +26,7 @@ from ..io.bagrun import complete_windows, resolve_topics, truth_values
 from ..io.mcaplog import BagError, read_bag
 from ..monitoring.health import results_summary
 from ..monitoring.prognosis import history_summary
-from .launch import _HOURS_HINT, check_operating_hours
+from .launch import HOURS_HINT, check_operating_hours
 from .params import Param, declare
 from . import msg_class, qos, run_node, teardown
 from .monitor import MonitorNode
@@ -188,7 +188,7 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
         if mon is not None and history:
             hist = history_summary(history, actuator_id, [
                 {"test_id": r["test_id"], "appended": r["prognosis"].appended, "error": r["prognosis"].error}
-                for r in mon.results if r.get("prognosis") is not None], _HOURS_HINT if operating_hours is None else None)
+                for r in mon.results if r.get("prognosis") is not None], HOURS_HINT if operating_hours is None else None)
         sent = rep.sent
     finally:
         teardown(ex, nodes, ctx)
