@@ -361,6 +361,35 @@ def test_a_refused_or_only_read_file_is_left_byte_for_byte(tmp_path):
     assert snapshot(db) == snap
 
 
+def test_a_read_only_open_creates_nothing_and_writes_nothing(tmp_path):
+    """A read-only open of a missing path created an empty file there, and its close checkpointed
+    a -wal left by a writer into the file: now it refuses the path and leaves the file as it was."""
+    missing = tmp_path / "sub" / "none.sqlite"
+    for where in (missing, tmp_path / "none.sqlite"):
+        with pytest.raises(PrognosticsError, match="no such history file") as err:
+            HistoryStore(where, readonly=True)
+        assert str(where) in str(err.value)
+        assert not where.exists() and not where.parent.joinpath(where.name + "-wal").exists()
+    assert not missing.parent.exists()
+    with pytest.raises(PrognosticsError, match="a directory"):
+        HistoryStore(tmp_path, readonly=True)
+    # a writer that died with its last test in the -wal only: read, it is there; the file stays as it was
+    live = sqlite3.connect(tmp_path / "live.sqlite")   # kept open: the store's close does not checkpoint
+    with HistoryStore(tmp_path / "live.sqlite") as st:
+        st.add_tests([rec(t=0.0), rec(t=10.0)])
+        copy = tmp_path / "copy"
+        copy.mkdir()
+        for suffix in ("", "-wal"):
+            (copy / f"h.sqlite{suffix}").write_bytes((tmp_path / f"live.sqlite{suffix}").read_bytes())
+    live.close()
+    db, wal = copy / "h.sqlite", copy / "h.sqlite-wal"
+    before, wal_before = db.read_bytes(), wal.read_bytes()
+    assert len(wal_before) > 0
+    with HistoryStore(db, readonly=True) as st:
+        assert [r["time_h"] for r in st.list_tests("A1")] == [0.0, 10.0]
+    assert db.read_bytes() == before and wal.read_bytes() == wal_before
+
+
 #: one `eha-health` process that says it is ready, then starts its command when told to go
 _AT_GO = """
 import os, sys
@@ -606,14 +635,19 @@ def test_a_history_on_a_read_only_medium_is_read_and_writers_say_it_is_read_only
         from eha_health.monitoring.prognosis import PrognosisStep
         r = simulate(kind="reference", faults=Faults(k_gm=0.02),
                      params=load("reference").with_effect_names(["sensor_noise"]), seed=5)
-        out = PrognosisStep({str(db)!r}, "ACT-7").after_diagnosis(diagnose(r, method="deterministic"), 1100.0)
-        print(json.dumps({{"appended": out.appended, "error": out.error, "rul": out.prognosis is not None}}))
+        d = diagnose(r, method="deterministic")
+        out = PrognosisStep({str(db)!r}, "ACT-7").after_diagnosis(d, 1100.0)
+        new = PrognosisStep({str(ro / "new.sqlite")!r}, "ACT-7").after_diagnosis(d, 1100.0)
+        print(json.dumps({{"appended": out.appended, "error": out.error, "rul": out.prognosis is not None,
+                          "new": new.error}}))
     """)
     got = run([sys.executable, "-c", step])
     assert got.returncode == 0, got.stderr
     out = json.loads(got.stdout.splitlines()[-1])
     assert not out["appended"] and out["rul"], out
     assert "not appended" in out["error"] and "read-only" in out["error"] and "not a history" not in out["error"]
+    # no file there to read either: the error says the folder is read-only, not that the file is missing
+    assert "not appended" in out["new"] and "read-only" in out["new"] and "no such" not in out["new"], out
 
     assert db.read_bytes() == before and snapshot(db) == stored
     assert sorted(p.name for p in ro.iterdir()) == ["h.sqlite"]

@@ -107,6 +107,8 @@ class PrognosisStep:
                                       on_wait=self.on_wait)
                 except ReadOnlyHistory as e:   # a read-only medium: no append, the stored history's RUL
                     out.error = f"{NOT_APPENDED}{e}"
+                    if not Path(self.history).is_file():   # no stored history: the read would hide why
+                        return
                     st = HistoryStore(self.history, self.settings, readonly=True)
                 with st:
                     try:

@@ -146,7 +146,8 @@ class HistoryStore:
     def __init__(self, path: str | Path | None = None, settings: Settings | None = None, readonly: bool = False,
                  cancelled: Callable[[], bool] | None = None, on_wait: Callable[[str], None] | None = None):
         """``readonly``: read what is there and write nothing -- no schema into an empty file, no
-        switch to WAL (a file refused, or only read, stays byte for byte as it was).
+        switch to WAL (a file refused, or only read, stays byte for byte as it was); a path with no
+        file is refused and nothing is created there.
         ``cancelled``: asked while a write waits for another writer's lock; True gives up
         (:class:`LockWaitStopped`); ``on_wait`` hears once that a write waits."""
         self.settings = settings or load_settings()
@@ -154,7 +155,12 @@ class HistoryStore:
         self.readonly = readonly
         self.cancelled, self.on_wait = cancelled, on_wait
         self._said_wait = False   # on_wait hears of a wait once
-        if not readonly:
+        if readonly:
+            if self.path.is_dir():
+                raise PrognosticsError(f"{self.path}: a directory, not a history file")
+            if not self.path.exists():
+                raise PrognosticsError(f"{self.path}: no such history file (read-only: nothing created)")
+        else:
             check_writable(self.path)
             try:
                 self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -211,8 +217,15 @@ class HistoryStore:
         """A connection and the file's ``user_version``. A WAL file in a folder this process cannot
         write (a read-only filesystem) cannot be opened the usual way: SQLite creates its ``-shm``
         beside it. Read-only, such a file is opened immutable (SQLite's URI ``immutable=1``: no
-        locks, no ``-shm``) -- no writer can create the ``-shm`` there either, so none is running."""
-        conn = sqlite3.connect(str(self.path), timeout=BUSY_TIMEOUT_S, isolation_level=None)
+        locks, no ``-shm``) -- no writer can create the ``-shm`` there either, so none is running.
+
+        Read-only opens use SQLite's ``mode=ro``: a plain open creates a missing file, and its close
+        checkpoints the ``-wal`` into the file -- a write. A WAL file read so keeps a ``-wal`` and a
+        ``-shm`` beside it (created empty where there were none), as any SQLite reader without
+        write access leaves them; the next writer's close checkpoints and removes them."""
+        uri = f"file:{urllib.parse.quote(str(self.path.resolve()))}"
+        conn = sqlite3.connect(f"{uri}?mode=ro" if self.readonly else str(self.path), uri=self.readonly,
+                               timeout=BUSY_TIMEOUT_S, isolation_level=None)
         try:
             return conn, _user_version(conn)
         except sqlite3.OperationalError as e:
@@ -224,8 +237,7 @@ class HistoryStore:
             raise ReadOnlyHistory(f"{self.path}: {wal.name} beside it holds changes not yet in the file, and "
                                   f"SQLite cannot read them in a read-only folder (it needs to create "
                                   f"{self.path.name}-shm): copy the file and its {wal.name} to a writable folder")
-        conn = sqlite3.connect(f"file:{urllib.parse.quote(str(self.path.resolve()))}?immutable=1", uri=True,
-                               isolation_level=None)
+        conn = sqlite3.connect(f"{uri}?immutable=1", uri=True, isolation_level=None)
         return conn, _user_version(conn)
 
     def _read_only(self, e: sqlite3.OperationalError) -> "ReadOnlyHistory | None":
