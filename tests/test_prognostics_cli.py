@@ -239,6 +239,37 @@ def test_each_test_of_a_bag_is_a_recording_of_its_own(tmp_path, capsys):
     assert [t["k_gm"] for t in tests] == [pytest.approx(0.3, abs=0.02), pytest.approx(0.36, abs=0.02)]
 
 
+def test_a_window_the_monitor_dropped_at_its_stop_is_not_added(tmp_path, capsys):
+    """A window the monitor recorded as cut off by its stop (metadata dropped/test_<id>) with both its
+    marks in the log was diagnosed and appended as a whole test; now it is passed over, saying why."""
+    from eha_health.io.bagrun import write_run
+    from eha_health.io.mcaplog import BagWriter
+    p = load("reference").with_effect_names(["sensor_noise"])
+    reason = "the monitor stopped while it waited for its last samples"
+    bag, one, db = tmp_path / "two.mcap", tmp_path / "one.mcap", tmp_path / "h.sqlite"
+    with BagWriter(bag) as w:
+        for tid, (k, t0) in enumerate([(0.3, 1), (0.36, 9)], start=1):
+            write_run(w, simulate(kind="reference", faults=Faults(k_gm=k), params=p, seed=tid), test_id=tid,
+                      start_ns=t0 * 1_000_000_000)
+        w.add_metadata("dropped/test_1", {"reason": reason})
+    with BagWriter(one) as w:
+        write_run(w, simulate(kind="reference", faults=Faults(k_gm=0.2), params=p, seed=5), test_id=4)
+        w.add_metadata("dropped/test_4", {"reason": reason})
+    common = ["--history", str(db), "--actuator", "X", "--time-h", "10", "--quiet"]
+    for argv, name in (([str(bag), "--test", "1"], f"{bag} test 1"), ([str(one)], f"{one}: nothing to add")):
+        code, out, err = run(capsys, ["history", "add", *argv, *common])
+        assert code == 2 and out == "" and not db.exists(), (out, err)
+        line, = err.splitlines()
+        assert line.startswith(f"eha-health history: error: {name}") and "cut off by the monitor's stop" in line and reason in line, line
+    # without --test: the first window not cut off
+    code, out, err = run(capsys, ["history", "add", str(bag), *common])
+    assert code == 0 and out.startswith("added: X at 10 h"), (out, err)
+    assert f"note: {bag} test 1: skipped, cut off by the monitor's stop ({reason}; metadata dropped/test_1)" in err
+    assert "diagnosing test 2" in err
+    (t,) = json.loads(run(capsys, ["history", "list", "--history", str(db), "--json"])[1])["tests"]
+    assert t["k_gm"] == pytest.approx(0.36, abs=0.02)
+
+
 def test_thresholds_command(capsys):
     code, out, _ = run(capsys, ["thresholds", "--json"])
     obj = json.loads(out)

@@ -63,7 +63,8 @@ def cmd_history_add(args) -> int:
     _finite(args.usage, "--usage")
     settings = _settings(args)
     db = _db(args, False, settings)
-    r, _, notes = load_test(path, args.test)
+    test = _test_to_add(path, args.test)
+    r, _, notes = load_test(path, test)
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
     time_h, usage, sim_s, meta, live = args.time_h, args.usage, None, {}, None
@@ -113,6 +114,36 @@ def cmd_history_add(args) -> int:
         print(f"{'added' if added else 'already present'}: {args.actuator} at {time_h:g} h: {ks} ({d.method}) "
               f"-> {db}")
     return 0
+
+
+def _test_to_add(path: Path, test: int | None) -> int | None:
+    """The window of a bag to add: ``test``, or the first complete one, passing over the windows its
+    monitor recorded as cut off by its stop (:data:`~eha_health.io.bagrun.DROPPED_META`): such a window
+    may have both marks in the log and still lack samples the monitor was waiting for, so it is not
+    taken as a whole test. Each one passed over is said on stderr; none left is a usage error."""
+    if path.suffix.lower() != ".mcap":
+        return test
+    from ..io.bagrun import DROPPED_META, dropped_tests, window_ids
+    dropped = dropped_tests(path)
+    if not dropped or (test is not None and test not in dropped):
+        return test
+    cut = "cut off by the monitor's stop"
+    if test is not None:
+        raise UsageError(f"{path} test {test}: not added: {cut} ({dropped[test]}; metadata "
+                         f"{DROPPED_META.format(test)})")
+    wins = window_ids(path)
+    if wins and wins[0] not in dropped:
+        return None          # the default window is whole (read_run says which it took of several)
+    left = [t for t in wins if t not in dropped]
+    if not left:
+        said = "; ".join(f"test {t}: {why}" for t, why in dropped.items() if t in wins or not wins)
+        raise UsageError(f"{path}: nothing to add: every test window of the log was {cut} ({said})")
+    for t in wins[:wins.index(left[0])]:
+        print(f"note: {path} test {t}: skipped, {cut} ({dropped[t]}; metadata {DROPPED_META.format(t)})",
+              file=sys.stderr)
+    print(f"note: {path}: diagnosing test {left[0]}, the first one not cut off (choose with --test)",
+          file=sys.stderr)
+    return left[0]
 
 
 def cmd_history_list(args) -> int:

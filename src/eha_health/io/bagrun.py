@@ -55,6 +55,17 @@ def history_times(path: str | Path, test_id: int | None) -> dict[str, float]:
     return {k: float(rec[k]) for k in ("time_h", "usage", "sim_time_s") if rec.get(k) not in (None, "", "None")}
 
 
+def dropped_tests(path: str | Path) -> dict[int, str]:
+    """Test id -> reason of each window an MCAP log's :data:`DROPPED_META` records as cut off by the
+    monitor's stop ({} for a bag without any)."""
+    prefix = DROPPED_META.format("")
+    out = {}
+    for name, rec in read_bag(path, topics=[]).metadata.items():
+        if name.startswith(prefix) and name[len(prefix):].isdigit():
+            out[int(name[len(prefix):])] = (rec or {}).get("reason") or "no reason recorded"
+    return dict(sorted(out.items()))
+
+
 def truth_values(record: dict[str, str] | None) -> dict[str, float] | None:
     """The fault coefficients of a ``truth/test_<id>`` metadata record (strings) as numbers."""
     if not record:
