@@ -270,6 +270,48 @@ def test_a_window_the_monitor_dropped_at_its_stop_is_not_added(tmp_path, capsys)
     assert t["k_gm"] == pytest.approx(0.36, abs=0.02)
 
 
+def test_a_monitor_log_says_which_history_its_test_went_to(tmp_path, capsys):
+    """The history a monitor log's history/test_<id> names: this one, where the monitor's live row
+    is, adds nothing and says so before any diagnosis (it used to diagnose, then drop the row);
+    another one takes the test too, and says so (it used to say nothing)."""
+    from eha_health import diagnose
+    from eha_health.io.bagrun import write_run
+    from eha_health.io.mcaplog import BagWriter
+    from eha_health.monitoring.prognosis import PrognosisStep
+    p = load("reference").with_effect_names(["sensor_noise"])
+    r = simulate(kind="reference", faults=Faults(k_gm=0.3), params=p, seed=1)
+    db, other, fresh = tmp_path / "h.sqlite", tmp_path / "merged.sqlite", tmp_path / "fresh.sqlite"
+
+    def monitor_log(bag, history):
+        with BagWriter(bag) as w:
+            w.add_metadata("eha_health", {"actuator_id": "X"})
+            write_run(w, r, test_id=1, start_ns=7_000_000_000)
+            w.add_metadata("history/test_1", {"actuator_id": "X", "time_h": "100.0", "sim_time_s": "7.0",
+                                              "history": str(history.absolute())})
+        return bag
+    log = monitor_log(tmp_path / "mon.mcap", db)
+    # the monitor's own append: its row hashed by the channels and the window stamp
+    step = PrognosisStep(db, "X")
+    assert step.after_diagnosis(diagnose(r, method="deterministic"), 100.0, sim_time_s=7.0, response=r).appended
+    before = rows_of(db)
+    common = ["--actuator", "X", "--method", "deterministic", "--quiet"]
+    code, out, err = run(capsys, ["history", "add", str(log), "--history", str(db), *common])
+    assert code == 0 and err == "" and rows_of(db) == before
+    assert out == (f"{log} test 1 is already in {db} (actuator X, time_h 100, window stamp 7 s: metadata "
+                   f"history/test_1, appended by the monitor): nothing added\n")      # no diagnosis printed
+    # into another history (a merge): added, and said
+    code, out, err = run(capsys, ["history", "add", str(log), "--history", str(other), *common])
+    assert code == 0 and out.startswith("added: X at 100 h"), (out, err)
+    assert err == (f"note: {log} test 1: the monitor appended it to {db.absolute()} (metadata history/test_1), "
+                   f"not to {other}; added to {other} as well\n")
+    # the log names this history, which lacks the test (a row removed, the file replaced): added, and said
+    code, out, err = run(capsys, ["history", "add", str(monitor_log(tmp_path / "f.mcap", fresh)),
+                                  "--history", str(fresh), *common])
+    assert code == 0 and out.startswith("added: X at 100 h"), (out, err)
+    assert "says the monitor appended it to" in err and "which held no test of actuator X at time_h 100" in err
+    assert [len(rows_of(h)[0]) for h in (db, other, fresh)] == [1, 1, 1]
+
+
 def test_thresholds_command(capsys):
     code, out, _ = run(capsys, ["thresholds", "--json"])
     obj = json.loads(out)

@@ -163,7 +163,7 @@ def test_a_prognosis_that_fails_is_a_history_error_not_a_failed_diagnosis(tmp_pa
     assert level == "OK"       # no RUL to warn on; the node escalates the error itself (WARN)
 
 
-def test_monitor_node_appends_and_publishes_the_rul(tmp_path):
+def test_monitor_node_appends_and_publishes_the_rul(tmp_path, capsys):
     from eha_health.io.bagrun import history_times
     from eha_health.ros.graph import Graph
     from msg_bridge import contract as C
@@ -209,11 +209,14 @@ def test_monitor_node_appends_and_publishes_the_rul(tmp_path):
     # the monitor's log says where the test went: history add of the log finds the same time
     assert history_times(log, res["test_id"])["time_h"] == last + 180.0
     # ... and the same test: history add of the log (hashed by the file, not by the channels as the
-    # monitor did) recognises it by its actuator, time and window stamp and adds nothing
+    # monitor did) recognises it by its actuator, time and window stamp, and adds nothing, undiagnosed
     from eha_health.cli import main as cli_main
+    capsys.readouterr()
     assert cli_main(["history", "add", str(log), "--actuator", "eha", "--history", str(db),
                      "--method", "deterministic", "--quiet"]) == 0
-    assert count(db) == 10
+    out = capsys.readouterr().out
+    assert count(db) == 10 and f"is already in {db} (actuator eha, time_h {last + 180.0:g}" in out, out
+    assert out.endswith("appended by the monitor): nothing added\n"), out
 
 
 def test_status_says_what_the_history_checks_did(tmp_path):

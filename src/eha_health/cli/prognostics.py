@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -67,11 +68,13 @@ def cmd_history_add(args) -> int:
     r, _, notes = load_test(path, test)
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
-    time_h, usage, sim_s, meta, live = args.time_h, args.usage, None, {}, None
+    time_h, usage, sim_s, meta, live, logged = args.time_h, args.usage, None, {}, None, None
     if path.suffix.lower() == ".mcap":
-        from ..io.bagrun import history_times
+        from ..io.bagrun import history_record, history_times
         from ..io.mcaplog import bag_metadata
-        meta = history_times(path, r.meta.get("test_id"))
+        record = history_record(path, r.meta.get("test_id"))
+        meta = history_times(path, r.meta.get("test_id"), record)
+        logged = record.get("history") or None     # the file the monitor appended the test to
         time_h = meta.get("time_h") if time_h is None else time_h
         usage = meta.get("usage") if usage is None else usage
         sim_s = meta.get("sim_time_s")
@@ -92,19 +95,30 @@ def cmd_history_add(args) -> int:
             print(f"{path}{'' if tid is None else f' test {tid}'} is already in {db} (actuator {t['actuator_id']}, "
                   f"time_h {t['time_h']:g}): nothing added")
             return 0
-        if "time_h" in meta and (live or args.actuator, meta["time_h"]) != (args.actuator, time_h) and \
-                st.holds_test(live or args.actuator, meta["time_h"], sim_s):
-            # the monitor appended this test live; another --actuator / --time-h would store it twice
-            raise UsageError(f"{path}{'' if tid is None else f' test {tid}'} is already in the history: the monitor "
-                             f"appended it live for actuator {live or args.actuator} at time_h {meta['time_h']:g} "
-                             f"(metadata history/test_{tid}), not {args.actuator} at {time_h:g}")
+        if "time_h" in meta and st.holds_test(live or args.actuator, meta["time_h"], sim_s):
+            # the monitor appended this test live (its row hashed by the channels, not by this file)
+            if (live or args.actuator, meta["time_h"]) != (args.actuator, time_h):   # it would be stored twice
+                raise UsageError(f"{path}{'' if tid is None else f' test {tid}'} is already in the history: the "
+                                 f"monitor appended it live for actuator {live or args.actuator} at time_h "
+                                 f"{meta['time_h']:g} (metadata history/test_{tid}), not {args.actuator} at {time_h:g}")
+            print(f"{path} test {tid} is already in {db} (actuator {args.actuator}, time_h {time_h:g}, window "
+                  f"stamp {sim_s:g} s: metadata history/test_{tid}, appended by the monitor"
+                  f"{'' if logged is None or _same_file(logged, db) else f' to {logged}'}): nothing added")
+            return 0
         st.check_next_time(args.actuator, time_h, sim_s, str(path), backfill=args.backfill)   # before the diagnosis
         d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=progress(args))
         rec = HealthRecord(args.actuator, float(time_h), (0.0,) * 3, (0.0,) * 3, usage=usage)
         notes = st.usage_notes([rec]) + (st.backfill_notes([rec]) if args.backfill else [])
         added = st.add_diagnosis(d, args.actuator, time_h, usage=usage, usage_unit=args.usage_unit,
                                  source_path=path, sim_time_s=sim_s, source_window=window, backfill=args.backfill)
-    for n in notes if added else []:
+        # where the monitor appended it, said after the append (a refusal stays one line), never left unsaid
+        where = [] if logged is None else [
+            f"{path} test {tid}: the log's metadata history/test_{tid} says the monitor appended it to {db}, "
+            f"which held no test of actuator {live or args.actuator} at time_h {meta.get('time_h', time_h):g} "
+            f"with its window stamp (a row removed, or the file replaced)" if _same_file(logged, db) else
+            f"{path} test {tid}: the monitor appended it to {logged} (metadata history/test_{tid}), not to {db}"
+            + (f"; added to {db} as well" if added else "")]
+    for n in where + (notes if added else []):
         print(f"note: {n}", file=sys.stderr)
     ks = ", ".join(f"{n.upper()}={v:.4f}+-{d.std['k_' + n]:.4f}" for n, v in zip(FAULT_KEYS, d.faults.as_tuple()))
     if args.json:
@@ -114,6 +128,14 @@ def cmd_history_add(args) -> int:
         print(f"{'added' if added else 'already present'}: {args.actuator} at {time_h:g} h: {ks} ({d.method}) "
               f"-> {db}")
     return 0
+
+
+def _same_file(logged: str, db: Path) -> bool:
+    """Whether the history a monitor log names (an absolute path, as the monitor wrote it) is ``db``."""
+    try:
+        return os.path.samefile(logged, db)
+    except OSError:     # one of them is gone (moved, not created yet): only the names can tell
+        return Path(logged).expanduser().resolve() == db.expanduser().resolve()
 
 
 def _test_to_add(path: Path, test: int | None) -> int | None:

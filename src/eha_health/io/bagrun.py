@@ -46,12 +46,17 @@ HISTORY_REFUSED_META = "history_refused/test_{}"
 DROPPED_META = "dropped/test_{}"
 
 
-def history_times(path: str | Path, test_id: int | None) -> dict[str, float]:
-    """``time_h``, ``usage``, ``sim_time_s`` of test ``test_id`` from an MCAP log's :data:`HISTORY_META`
-    record (the keys it has; {} without one)."""
+def history_record(path: str | Path, test_id: int | None) -> dict[str, str]:
+    """Test ``test_id``'s :data:`HISTORY_META` record of an MCAP log as written ({} without one)."""
     if test_id is None:
         return {}
-    rec = read_bag(path, topics=[]).metadata.get(HISTORY_META.format(test_id)) or {}
+    return dict(read_bag(path, topics=[]).metadata.get(HISTORY_META.format(test_id)) or {})
+
+
+def history_times(path: str | Path, test_id: int | None, record: dict[str, str] | None = None) -> dict[str, float]:
+    """``time_h``, ``usage``, ``sim_time_s`` of test ``test_id`` from an MCAP log's :data:`HISTORY_META`
+    record (the keys it has; {} without one); ``record``: that record, already read."""
+    rec = history_record(path, test_id) if record is None else record
     return {k: float(rec[k]) for k in ("time_h", "usage", "sim_time_s") if rec.get(k) not in (None, "", "None")}
 
 
