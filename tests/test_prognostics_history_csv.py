@@ -32,8 +32,8 @@ def write(path, header, rows):
 def table(db):
     con = sqlite3.connect(db)
     try:
-        return (con.execute("SELECT actuator_id, time_h, k_gm, k_fsj, k_bkl, std_gm, std_fsj, std_bkl, usage "
-                            "FROM tests ORDER BY actuator_id, time_h").fetchall(),
+        return (con.execute("SELECT actuator_id, time_h, k_gm, k_fsj, k_bkl, std_gm, std_fsj, std_bkl, usage, "
+                            "usage_unit, sim_time_s FROM tests ORDER BY actuator_id, time_h").fetchall(),
                 con.execute("SELECT actuator_id, time_h, fault, action, note FROM maintenance "
                             "ORDER BY actuator_id, time_h, fault").fetchall())
     finally:
@@ -44,7 +44,8 @@ def table(db):
 def store(tmp_path):
     """A: gm wears, fsj wears, is repaired at 400 h and wears again. B: a unit replaced at 360 h
     (its usage restarts from zero), whose gm then wears; its std are not stated (estimated when
-    read). C: flat. Errors 0.004; a fixed seed."""
+    read). C: flat. Errors 0.004; a fixed seed. A's usage is in flight hours, B's in cycles; A's
+    tests carry a window stamp (a monitor's), the others none."""
     rng = np.random.default_rng(5)
     recs = []
     for i in range(16):
@@ -52,10 +53,10 @@ def store(tmp_path):
         gm = 6e-4 * max(t - 80.0, 0.0) + rng.normal(0, 0.004)
         fsj = 9e-4 * (t if t < 400 else t - 400) + rng.normal(0, 0.004)
         recs.append(HealthRecord("A", t, (max(gm, 0.0), max(fsj, 0.0), abs(rng.normal(0, 0.004))),
-                                 (0.004, 0.004, 0.004), usage=0.8 * t))
+                                 (0.004, 0.004, 0.004), usage=0.8 * t, usage_unit="FH", sim_time_s=3600.0 * t + 0.125))
         gb = (5e-4 * t if t < 360 else 8e-4 * (t - 360)) + rng.normal(0, 0.004)
         recs.append(HealthRecord("B", t, (max(gb, 0.0), abs(rng.normal(0, 0.004)), 0.0), (None, None, None),
-                                 usage=0.9 * (t if t < 360 else t - 360) + 10.0))
+                                 usage=0.9 * (t if t < 360 else t - 360) + 10.0, usage_unit="cycles"))
         recs.append(HealthRecord("C", t, (abs(rng.normal(0, 0.004)), 0.0, 0.0), (0.004, 0.004, 0.004)))
     db = tmp_path / "h.sqlite"
     with HistoryStore(db) as st:
@@ -89,7 +90,10 @@ def test_an_export_imports_to_the_same_prognosis(store, tmp_path, capsys):
     assert code == 0, err
     assert "imported 48 new test(s)" in out and "2 maintenance action(s)" in out
     assert err == ""            # B's usage falls at its recorded replacement: nothing to note
+    # every stored column the file holds, usage_unit and sim_time_s too (lost until 2026-11-30)
     assert table(db2) == table(store)
+    assert {(r[0], r[9], r[10] is None) for r in table(db2)[0]} == {("A", "FH", False), ("B", "cycles", True),
+                                                                     ("C", None, True)}
     assert prognose_json(capsys, "--history", str(db2)) == want
 
     # again: nothing added, nothing changed
@@ -248,6 +252,12 @@ def test_bad_exports_exit_2_and_leave_files_as_they_were(store, tmp_path, capsys
      r"line 2: time_h must be a number of hours in \[0, 1e\+09\], got 1e\+290"),
     (("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "usage"), [["A", 1, 0, 0, 0, 1e300]],
      r"line 2: usage must be a number in \[0, 1e\+12\]"),
+    (("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "sim_time_s"), [["A", 1, 0, 0, 0, "nan"]],
+     r"line 2: sim_time_s must be a time stamp \[s\] >= 0, got nan"),
+    (("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "sim_time_s"), [["A", 1, 0, 0, 0, "-2"]],
+     r"line 2: sim_time_s must be a time stamp \[s\] >= 0, got -2.0"),
+    (("actuator_id", "time_h", "k_gm", "k_fsj", "k_bkl", "Usage_unit"), [["A", 1, 0, 0, 0, "FH"]],
+     r"column\(s\) Usage_unit: names are case-sensitive"),
 ])
 def test_what_a_history_csv_would_misread_is_refused(tmp_path, capsys, header, rows, match):
     """Cases of an independent probe (2026-11-29), each read silently or with a traceback before."""

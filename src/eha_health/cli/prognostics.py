@@ -412,7 +412,7 @@ def register(sub) -> None:
     ls.set_defaults(func=cmd_history_list)
 
     im = hs.add_parser("import", help="append the rows of a HISTORY.csv (actuator_id, time_h, k_gm, k_fsj, "
-                                      "k_bkl [, std_gm, std_fsj, std_bkl, usage])",
+                                      "k_bkl [, std_gm, std_fsj, std_bkl, usage, usage_unit, sim_time_s])",
                         parents=[history_option(), prognostics_settings_option()])
     im.add_argument("file", help="HISTORY.csv")
     im.add_argument("--maintenance", help="MAINTENANCE.csv (actuator_id, time_h, fault [, action, note]) "

@@ -1,9 +1,11 @@
 """A history as CSV files: HISTORY.csv (tests) and MAINTENANCE.csv (repairs and replacements).
 
 * HISTORY.csv: ``actuator_id, time_h, k_gm, k_fsj, k_bkl`` [+ ``std_gm, std_fsj, std_bkl,
-  usage``]; time [h], K dimensionless in [0, FAULT_UPPER], std their standard errors (an empty
-  or absent std: not stated, estimated when the history is read), usage flight hours or cycles
-  from new. Other columns are the user's own and are not read.
+  usage, usage_unit, sim_time_s``]; time [h], K dimensionless in [0, FAULT_UPPER], std their
+  standard errors (an empty or absent std: not stated, estimated when the history is read), usage
+  flight hours or cycles from new, usage_unit its unit (text, e.g. FH), sim_time_s the test
+  window's ROS / simulated stamp [s] (the store's columns of the same names; empty or absent: none).
+  Other columns are the user's own and are not read.
 * MAINTENANCE.csv: ``actuator_id, time_h, fault`` [+ ``action, note``]; fault gm, fsj, bkl or
   all; action repair (default) or replace. A fault's trend restarts at its latest maintenance,
   and a usage count may fall at a replacement (a new unit counts from zero).
@@ -17,6 +19,7 @@ written with ``repr`` (the shortest text that reads back to the same float).
 from __future__ import annotations
 
 import csv
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -27,7 +30,7 @@ from .config import PrognosticsError
 from .records import (K_COLUMNS, STD_COLUMNS, HealthRecord, MaintenanceRecord, check_maintenance,
                       check_maintenance_time, check_order, check_record)
 
-HISTORY_COLUMNS = ("actuator_id", "time_h", *K_COLUMNS, *STD_COLUMNS, "usage")
+HISTORY_COLUMNS = ("actuator_id", "time_h", *K_COLUMNS, *STD_COLUMNS, "usage", "usage_unit", "sim_time_s")
 MAINTENANCE_COLUMNS = ("actuator_id", "time_h", "fault", "action", "note")
 
 
@@ -109,8 +112,11 @@ def read_history_csv(path: str | Path) -> list[HealthRecord]:
         std = tuple(_float(row[f"std_{n}"], where, f"std_{n}") if row.get(f"std_{n}") not in (None, "")
                     else None for n in FAULT_KEYS)
         usage = _float(row["usage"], where, "usage") if row.get("usage") not in (None, "") else None
+        stamp = _float(row["sim_time_s"], where, "sim_time_s") if row.get("sim_time_s") not in (None, "") else None
+        if stamp is not None and not (math.isfinite(stamp) and stamp >= 0):
+            raise PrognosticsError(f"{where}: sim_time_s must be a time stamp [s] >= 0, got {stamp!r}")
         r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k, std,
-                         usage=usage, method="import")
+                         usage=usage, usage_unit=row.get("usage_unit") or None, sim_time_s=stamp, method="import")
         check_record(r, where)
         r.source_path, r.where = str(path), where
         recs.append((where, r))
@@ -154,7 +160,7 @@ def write_history_csv(path: str | Path, tests: list[dict]) -> None:
     """A HISTORY.csv of stored tests (dicts of :meth:`store.HistoryStore.list_tests`)."""
     _write_atomic(Path(path), HISTORY_COLUMNS,
                   ([t["actuator_id"], _cell(t["time_h"]), *(_cell(t[c]) for c in K_COLUMNS + STD_COLUMNS),
-                    _cell(t["usage"])] for t in tests))
+                    _cell(t["usage"]), t["usage_unit"] or "", _cell(t["sim_time_s"])] for t in tests))
 
 
 def write_maintenance_csv(path: str | Path, maintenance: list[dict]) -> None:
