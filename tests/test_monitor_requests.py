@@ -4,13 +4,14 @@ Over DDS a restarted monitor's subscription can see the command publisher -- and
 before that publisher has matched it: the test's marks and the plant's answers arrive, no command
 sample does (measured: 3 of 14 runs of tests/test_monitor_kill.py). The real monitor node is fed
 through its callbacks (ros/harness.py); ``tests_requested`` stands for the command node's answer
-"test N started" to its request.
+"test N started" to its request. ``request_tests`` set at run time is tested on a real graph.
 """
 import numpy as np
 import pytest
 
 from eha_health.physics.faults import Faults
 from eha_health.physics.model import simulate
+from eha_health.ros.graph import Graph
 from eha_health.ros.harness import NodeHarness, message
 from eha_health.ros.monitor import LOST_RETRIES
 
@@ -103,3 +104,16 @@ def test_a_requested_test_whose_marks_never_come_is_asked_for_again():
         assert mon.tests_requested == mon.verdicts + 1 and mon.tests_lost == LOST_RETRIES
     finally:
         h.close()
+
+
+def test_request_tests_set_at_run_time_makes_the_monitor_ask():
+    """Until 2026-11-30 the start_test client was made at start only when request_tests > 0: a
+    monitor started with 0 accepted `ros2 param set ... request_tests 1` and never asked."""
+    with Graph(faults=TRUTH) as g:
+        mon = g.monitor
+        g.set_parameters(mon, request_tests=1)
+        # a deadline for a stuck graph, not a speed target (busy 2-core machine)
+        g.spin_until(lambda: mon.verdicts >= 1, 900.0, "the verdict of the test the monitor asked for")
+        assert mon.tests_requested == 1 and g.command.tests_started == 1
+        r = mon.results[-1]
+    assert np.abs(np.array(r["diagnosis"].faults.as_tuple()) - np.array(TRUTH.as_tuple())).max() <= 0.01

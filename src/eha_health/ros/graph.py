@@ -127,17 +127,22 @@ class Graph:
 
     def set_plant(self, timeout_s: float = 120.0, **values) -> None:
         """Change plant parameters through its standard ``set_parameters`` service."""
-        client = self.monitor.create_client(SetParameters, f"{self.plant.get_fully_qualified_name()}/set_parameters")
+        self.set_parameters(self.plant, timeout_s, **values)
+
+    def set_parameters(self, node, timeout_s: float = 120.0, **values) -> None:
+        """Change ``node``'s parameters through its standard ``set_parameters`` service, as
+        ``ros2 param set`` does (ValueError: the node refused them)."""
+        client = self.command.create_client(SetParameters, f"{node.get_fully_qualified_name()}/set_parameters")
         try:
-            self.spin_until(client.service_is_ready, timeout_s, "plant set_parameters service")
+            self.spin_until(client.service_is_ready, timeout_s, f"{node.get_name()} set_parameters service")
             req = SetParameters.Request(parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
             fut = client.call_async(req)
             self.spin_until(fut.done, timeout_s, "set_parameters answer")
             bad = [r.reason for r in fut.result().results if not r.successful]
             if bad:
-                raise ValueError(f"plant refused the parameters: {'; '.join(bad)}")
+                raise ValueError(f"{node.get_name()} refused the parameters: {'; '.join(bad)}")
         finally:
-            self.monitor.destroy_client(client)
+            self.command.destroy_client(client)
 
     def listen(self, topic, node_name: str) -> list:
         """Messages of contract ``topic`` received by a new, independent node on this executor (the list fills

@@ -152,9 +152,8 @@ class MonitorNode(Node):
         self._request = None                  # the start_test call in flight
         self._asked_at: float | None = None   # when the command node accepted our last request [s, monotonic]
         self._next_request = 0.0
+        # made when request_tests is first > 0: a monitor started with 0 and set to N at run time asks too
         self._start_client = None
-        if int(self.get_parameter("request_tests").value) > 0:
-            self._start_client = self.create_client(Trigger, "eha/start_test")
         self._truth_client = None
         if self.get_parameter("plant_node").value:
             self._truth_client = self.create_client(
@@ -315,10 +314,12 @@ class MonitorNode(Node):
         Discovery says a node exists; only a matched publisher delivers. Starting a test
         before the plant's answers reach this node would lose its first samples.
         """
-        if self._start_client is None or self._request is not None or time.monotonic() < self._next_request:
+        if self._request is not None or time.monotonic() < self._next_request:
             return
         if self.tests_requested >= int(self.get_parameter("request_tests").value):
             return
+        if self._start_client is None:
+            self._start_client = self.create_client(Trigger, "eha/start_test")
         if self.verdicts < self.tests_requested or self.busy:
             return
         if not all(s.get_publisher_count() >= 1 for s in self._subs) or not self._start_client.service_is_ready():
