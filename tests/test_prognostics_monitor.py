@@ -371,6 +371,8 @@ def test_another_diagnosis_at_a_stored_time_and_stamp_is_refused_not_dropped(tmp
                   params=load("reference").with_effect_names(["sensor_noise"]), seed=8)
     other = step.after_diagnosis(diagnose(r2, method="deterministic"), 0.0, sim_time_s=0.0, response=r2)
     assert not other.appended and "duplicate row" in other.error and "time_h=0" in other.error
+    # it says how to give the test its own time (probe 11 gave no hint)
+    assert other.error.endswith("set operating_hours to this test's operating hours"), other.error
     assert rul_values(other)["history_error"] == other.error and count(db) == 1
     with HistoryStore(db) as st:
         assert st.list_tests("eha")[0]["k_gm"] == pytest.approx(d.faults.k_gm)     # the stored one stays
@@ -402,10 +404,12 @@ def test_a_new_session_whose_test_collides_with_a_stored_one_is_refused_loudly(t
     assert not res["prognosis"].appended and "duplicate row" in res["prognosis"].error
     assert float(kv["k_gm"]) < 0.3 and st.level == bytes([1]) and res["level"] == "WARN"    # K alone says OK
     assert kv["history_appended"] == "False" and "duplicate row" in kv["history_error"] and count(db) == 1
+    assert "set operating_hours to this test's operating hours" in kv["history_error"]
     meta = read_bag(log, topics=[]).metadata
     tid = res["test_id"]
     assert f"history/test_{tid}" not in meta
     assert "duplicate row" in meta[f"history_refused/test_{tid}"]["error"]
+    assert "set operating_hours" in meta[f"history_refused/test_{tid}"]["error"]
 
 
 @pytest.mark.parametrize("param, value, says", [

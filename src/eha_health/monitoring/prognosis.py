@@ -40,6 +40,13 @@ from ..prognostics.prior_cache import Cancelled, FleetPriorCache
 #: How an append's refusal starts (:attr:`Outcome.error`).
 NOT_APPENDED = "not appended to the history: "
 
+#: What a live test refused as a duplicate row says to do: its time is the monitor's to set (probe 11
+#: gave no hint; a new simulated session restarts its window stamps at 0, so its first test's time
+#: and stamp are those of the previous session's first test).
+DUPLICATE_HINT = ("the monitor's operating time is its operating_hours parameter (else the window's stamp in "
+                  "hours, which a new simulated session restarts at 0): set operating_hours to this test's "
+                  "operating hours")
+
 #: The F fields of ``prognose --json`` the status carries, and the key they become.
 RUL_FIELDS = ("rul_median_h", "rul_p05_h", "rul_p95_h", "p_fail_next")
 #: Key values of :func:`rul_values` about the test itself; the others are the actuator's RUL.
@@ -97,6 +104,7 @@ class PrognosisStep:
     def after_diagnosis(self, diagnosis, time_h: float, sim_time_s: float | None = None, response=None,
                         discrepancy: str | None = None, usage: float | None = None) -> Outcome:
         """Append ``diagnosis`` at operating time ``time_h`` [h] (window stamp ``sim_time_s`` [s]), then prognose."""
+        from ..prognostics.records import DuplicateRow
         from ..prognostics.store import HistoryStore, ReadOnlyHistory
         with self._lock:
             out = Outcome(False, time_h=time_h)
@@ -117,7 +125,7 @@ class PrognosisStep:
                                                             response=response, sim_time_s=sim_time_s,
                                                             discrepancy=discrepancy)
                     except PrognosticsError as e:   # e.g. times out of order: the stored history stays
-                        out.error = f"{NOT_APPENDED}{e}"
+                        out.error = f"{NOT_APPENDED}{e}" + (f"; {DUPLICATE_HINT}" if isinstance(e, DuplicateRow) else "")
                     self._prognose(st, out)
             return self._guarded(out, run)
 

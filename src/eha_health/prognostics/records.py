@@ -230,6 +230,10 @@ def fill_missing_std(recs: list[HealthRecord], floor: float, repairs=()) -> None
 BACKFILL_HINT = "a test older than the latest stored one goes in with --backfill"
 
 
+class DuplicateRow(PrognosticsError):
+    """A test at an actuator's time that is taken already (a caller may say how to give it another)."""
+
+
 def check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = None) -> None:
     """Times must increase strictly per actuator within a batch (and after ``latest``). A usage
     that falls is not refused: :func:`usage_fall_notes` says it (a replaced unit's first tests
@@ -242,8 +246,8 @@ def check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = Non
         if prev is not None:
             t0, w0 = prev
             if r.time_h == t0:
-                raise PrognosticsError(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
-                                       f"time_h={r.time_h:g} ({w0})")
+                raise DuplicateRow(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
+                                   f"time_h={r.time_h:g} ({w0})")
             if r.time_h < t0:
                 hint = f"; {BACKFILL_HINT}" if w0 == "the history" else ""
                 raise PrognosticsError(f"{where}: times out of order: actuator {r.actuator_id} test at "

@@ -50,7 +50,7 @@ from ..physics.faults import FAULT_KEYS, FAULT_UPPER
 from ..signals.channels import MEASURED
 from .config import PrognosticsError, Settings, load_settings
 from .history_csv import check_maintenance_times, read_history_csv, read_maintenance_csv
-from .records import (K_COLUMNS, MAINT_FAULTS, STD_COLUMNS, History, HealthRecord, MaintenanceRecord,
+from .records import (K_COLUMNS, MAINT_FAULTS, STD_COLUMNS, DuplicateRow, History, HealthRecord, MaintenanceRecord,
                       check_maintenance, check_maintenance_time, check_order, check_record, history_from_records,
                       now_utc, replacements, usage_fall_notes, batch_usage_notes)
 
@@ -416,8 +416,8 @@ class HistoryStore:
         """No stored test at an item's actuator and time (a back-filled test's own check)."""
         for where, r in items:
             if self._has_test_at(r.actuator_id, r.time_h):
-                raise PrognosticsError(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
-                                       f"time_h={r.time_h:g} (the history)")
+                raise DuplicateRow(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
+                                   f"time_h={r.time_h:g} (the history)")
 
     def usage_notes(self, records: list[HealthRecord], maintenance: list[MaintenanceRecord] | None = None) -> list[str]:
         """Notes for records whose usage count falls against the test before them, or below which
