@@ -565,12 +565,45 @@ def test_a_restarted_monitor_publishes_the_stored_historys_rul_before_its_first_
     # another actuator, none of whose tests is stored: as before, nothing until its first test
     with Graph(method="deterministic", actuator_id="other", monitor_params={"history": str(db)}) as g:
         seen = g.listen(C.DIAGNOSTICS, "independent_listener")
-        g.spin_until(lambda: g.monitor._stored is None, 300.0, "the start's prognosis done")
+        g.spin_until(lambda: not g.monitor._stored_due and g.monitor._stored is None, 300.0,
+                     "the start's prognosis done")
         n = len(seen)
         g.spin_until(lambda: len(seen) > n, 120.0, "a status after it")
         assert g.monitor._last_rul is None
     st = seen[-1].status[0]
     assert st.level == bytes([3]) and st.message == "no test window diagnosed yet"
+
+
+@pytest.mark.graph
+def test_a_test_is_diagnosed_and_appended_while_the_start_prognosis_still_runs(tmp_path, monkeypatch):
+    """The start's stored-history prognosis ran in the diagnosis worker, so its fleet-prior fit (~19 s
+    on 1000 actuators) held up the first test's diagnosis that long. Held here in its fit: the test is
+    diagnosed and appended meanwhile; its RUL, which needs that prior, follows once the fit ends."""
+    import threading
+    from eha_health.ros.graph import Graph
+    db = young_among_a_fleet(tmp_path, monkeypatch)
+    before = count(db)
+    asked, released = threading.Event(), threading.Event()
+    with Graph(faults=Faults(k_gm=gm_at(200.0)), method="deterministic",
+               monitor_params={"history": str(db), "operating_hours": 200.0, "next_check_h": 50.0}) as g:
+        mon = g.monitor
+        own = mon.prognosis._priors.cancelled
+
+        def ask():              # the start's fit waits at its first batch until the test lets it go on
+            asked.set()
+            released.wait(900)
+            return own()
+        mon.prognosis._priors.cancelled = ask
+        try:
+            g.spin_until(asked.is_set, 300.0, "the start prognosis in its fleet-prior fit")
+            g.spin_until(lambda: g.command.start_test()[0], 300.0, "a test started")
+            g.spin_until(lambda: count(db) == before + 1, 900.0, "the test appended while the start's fit is held")
+            assert not mon._stored.done() and mon.verdicts == 0
+        finally:
+            released.set()
+        g.spin_until(lambda: mon.verdicts >= 1, 900.0, "the test's verdict")
+    prog = mon.results[-1]["prognosis"]
+    assert prog.appended and prog.prognosis is not None and prog.error is None and prog.rul_time_h == 200.0
 
 
 def test_the_stored_prognosis_of_an_actuator_without_tests_is_none(tmp_path):

@@ -11,7 +11,9 @@ since its onset), and is cached until the rest of the fleet gains a test. :meth:
 (the node shutting down) lets a running step end early: the test is still appended -- unless
 the append waits for another writer's lock: it stops waiting, the test is not appended -- the
 prognosis is skipped or its fleet-prior fit cut short, and the outcome says so. At the node's start
-:meth:`PrognosisStep.stored` gives the RUL of the stored history (nothing appended), stopped the same way. An append that
+:meth:`PrognosisStep.stored` gives the RUL of the stored history (nothing appended), stopped the same way;
+it may run in another thread than the diagnoses: a test's append does not wait for it, the test's
+prognosis does (one prognosis at a time: the fleet prior it fits is cached, the test's reuses it). An append that
 waits for the lock says so at once (``on_wait``). A bad
 append (times out of order, K out of range, a read-only or unreadable file) never raises: the outcome says
 what went wrong and the RUL is that of the stored history.
@@ -93,6 +95,8 @@ class PrognosisStep:
                                    f"({self.error_p_fail}) <= 1")
         self._stopping = threading.Event()
         self._priors = FleetPriorCache(self.settings, cancelled=self._stopping.is_set)
+        # one prognosis at a time on the cache, whichever thread (the monitor's start prognosis has one
+        # of its own): a second would fit the same prior again, and the cache is not thread-safe
         self._lock = threading.Lock()
 
     def stop(self) -> None:
@@ -106,28 +110,30 @@ class PrognosisStep:
         """Append ``diagnosis`` at operating time ``time_h`` [h] (window stamp ``sim_time_s`` [s]), then prognose."""
         from ..prognostics.records import DuplicateRow
         from ..prognostics.store import HistoryStore, ReadOnlyHistory
-        with self._lock:
-            out = Outcome(False, time_h=time_h)
+        out = Outcome(False, time_h=time_h)
 
-            def run():
+        def run():
+            try:
+                st = HistoryStore(self.history, self.settings, cancelled=self._stopping.is_set,
+                                  on_wait=self.on_wait)
+            except ReadOnlyHistory as e:   # a read-only medium: no append, the stored history's RUL
+                out.error = f"{NOT_APPENDED}{e}"
+                if not Path(self.history).is_file():   # no stored history: the read would hide why
+                    return
+                st = HistoryStore(self.history, self.settings, readonly=True)
+            with st:
                 try:
-                    st = HistoryStore(self.history, self.settings, cancelled=self._stopping.is_set,
-                                      on_wait=self.on_wait)
-                except ReadOnlyHistory as e:   # a read-only medium: no append, the stored history's RUL
-                    out.error = f"{NOT_APPENDED}{e}"
-                    if not Path(self.history).is_file():   # no stored history: the read would hide why
-                        return
-                    st = HistoryStore(self.history, self.settings, readonly=True)
-                with st:
-                    try:
-                        if not st.readonly:
-                            out.appended = st.add_diagnosis(diagnosis, self.actuator_id, time_h, usage=usage,
-                                                            response=response, sim_time_s=sim_time_s,
-                                                            discrepancy=discrepancy)
-                    except PrognosticsError as e:   # e.g. times out of order: the stored history stays
-                        out.error = f"{NOT_APPENDED}{e}" + (f"; {DUPLICATE_HINT}" if isinstance(e, DuplicateRow) else "")
+                    if not st.readonly:
+                        out.appended = st.add_diagnosis(diagnosis, self.actuator_id, time_h, usage=usage,
+                                                        response=response, sim_time_s=sim_time_s,
+                                                        discrepancy=discrepancy)
+                except PrognosticsError as e:   # e.g. times out of order: the stored history stays
+                    out.error = f"{NOT_APPENDED}{e}" + (f"; {DUPLICATE_HINT}" if isinstance(e, DuplicateRow) else "")
+                # the append did not wait for the start's stored prognosis (its own connection); the
+                # prognosis does: it needs the fleet prior that one may be fitting, and reuses it
+                with self._lock:
                     self._prognose(st, out)
-            return self._guarded(out, run)
+        return self._guarded(out, run)
 
     def stored(self) -> Outcome | None:
         """The RUL of the stored history, nothing appended (the monitor's start, before its first
