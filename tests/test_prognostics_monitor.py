@@ -206,6 +206,9 @@ def test_monitor_node_appends_and_publishes_the_rul(tmp_path, capsys):
         row = hs.list_tests("eha")[-1]
     assert count(db) == 10 and row["time_h"] == last + 180.0 and row["sim_time_s"] is not None
     assert row["wall_time_utc"] and row["method"] == "deterministic"
+    # the row names its recording, the monitor's log (until 2026-11-30 null); hashed by its channels:
+    # the log was still being written
+    assert row["source_path"] == str(log.absolute()) and row["source_hash"]
     # the monitor's log says where the test went: history add of the log finds the same time
     assert history_times(log, res["test_id"])["time_h"] == last + 180.0
     # ... and the same test: history add of the log (hashed by the file, not by the channels as the

@@ -106,8 +106,10 @@ class PrognosisStep:
         self._stopping.set()
 
     def after_diagnosis(self, diagnosis, time_h: float, sim_time_s: float | None = None, response=None,
-                        discrepancy: str | None = None, usage: float | None = None) -> Outcome:
-        """Append ``diagnosis`` at operating time ``time_h`` [h] (window stamp ``sim_time_s`` [s]), then prognose."""
+                        discrepancy: str | None = None, usage: float | None = None,
+                        log_path: str | Path | None = None) -> Outcome:
+        """Append ``diagnosis`` at operating time ``time_h`` [h] (window stamp ``sim_time_s`` [s]; ``log_path``:
+        the MCAP log the test is being recorded into, its row's ``source_path``), then prognose."""
         from ..prognostics.records import DuplicateRow
         from ..prognostics.store import HistoryStore, ReadOnlyHistory
         out = Outcome(False, time_h=time_h)
@@ -126,7 +128,7 @@ class PrognosisStep:
                     if not st.readonly:
                         out.appended = st.add_diagnosis(diagnosis, self.actuator_id, time_h, usage=usage,
                                                         response=response, sim_time_s=sim_time_s,
-                                                        discrepancy=discrepancy)
+                                                        discrepancy=discrepancy, log_path=log_path)
                 except PrognosticsError as e:   # e.g. times out of order: the stored history stays
                     out.error = f"{NOT_APPENDED}{e}" + (f"; {DUPLICATE_HINT}" if isinstance(e, DuplicateRow) else "")
                 # the append did not wait for the start's stored prognosis (its own connection); the

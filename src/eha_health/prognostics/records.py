@@ -60,6 +60,9 @@ class HealthRecord:
     wall_time_utc: str | None = None
     software_version: str | None = None
     where: str | None = field(default=None, compare=False, repr=False)   # its place in a file (messages only)
+    #: appended as it was diagnosed (the monitor): ``source_path``, if any, names a log still being
+    #: written, not the recording its hash is of
+    live: bool = field(default=False, compare=False, repr=False)
 
     def content_hash(self) -> str:
         """Hash of the diagnosis inputs when there is no recording file."""

@@ -22,7 +22,8 @@ migrated when first opened for writing, :meth:`HistoryStore._migrate`):
   ``fit_rms`` (JSON, per-channel RMS: fit quality), ``discrepancy`` (verdict), ``warnings``
   (JSON), ``source_path``, ``source_hash`` (sha256 of the recording -- each test window of a bag
   of several with its window id, :func:`recording_hash` --, or of the diagnosis inputs when there
-  is no file; UNIQUE: the same recording twice adds no row),
+  is no file, or when the file is a monitor's MCAP log still being written, which a live test's
+  ``source_path`` names; UNIQUE: the same recording twice adds no row),
   ``software_version``; UNIQUE (actuator_id, time_h).
 * ``maintenance``: ``actuator_id``, ``time_h``, ``fault`` (gm, fsj, bkl, all), ``action``
   (repair, replace), ``wall_time_utc``, ``note``. A fault's trend restarts at its last
@@ -519,9 +520,10 @@ class HistoryStore:
                 raise PrognosticsError(f"{w}: this recording is already in the history for actuator {owner}")
             if owner is not None or r.source_hash in seen:
                 continue
-            # a live test (no file) is the first path by which a test comes: the same one again has
-            # its hash or its K; another diagnosis at its time and stamp is a duplicate row (probe 11)
-            if r.source_path is not None and self.holds_test(r.actuator_id, r.time_h, r.sim_time_s) \
+            # a live test (no file, or a log still being written) is the first path by which a test
+            # comes: the same one again has its hash or its K; another diagnosis at its time and stamp
+            # is a duplicate row (probe 11)
+            if r.source_path is not None and not r.live and self.holds_test(r.actuator_id, r.time_h, r.sim_time_s) \
                     or self.holds_values(r):
                 continue
             seen.add(r.source_hash)
@@ -538,12 +540,16 @@ class HistoryStore:
     def add_diagnosis(self, diagnosis, actuator_id: str, time_h: float, usage: float | None = None,
                       usage_unit: str | None = None, source_path: str | Path | None = None,
                       response=None, sim_time_s: float | None = None, discrepancy: str | None = None,
-                      source_window: int | None = None, backfill: bool = False) -> bool:
+                      source_window: int | None = None, backfill: bool = False,
+                      log_path: str | Path | None = None) -> bool:
         """Append one :class:`eha_health` Diagnosis; True if a row was added (``backfill``: :meth:`add_tests`).
 
         The source hash is that of ``source_path`` (CSV or bag; ``source_window``: the test window
         of a bag of several, :func:`recording_hash`) if given, else of the ``response`` channels
-        and the window stamp ``sim_time_s``, else of the diagnosis result itself.
+        and the window stamp ``sim_time_s``, else of the diagnosis result itself. ``log_path``
+        (without ``source_path``): the log a live test is being recorded into (the monitor's MCAP
+        log), stored as ``source_path`` but not hashed -- it is still open, its hash not yet known --
+        and the test is a live one (:meth:`add_tests`).
         """
         k = diagnosis.faults.as_tuple()
         std = tuple(diagnosis.std[f"k_{n}"] for n in FAULT_KEYS)
@@ -562,10 +568,11 @@ class HistoryStore:
             h = hh.hexdigest()
         else:
             h = None
+        named = source_path if source_path is not None else log_path
         rec = HealthRecord(actuator_id, float(time_h), k, std, usage=usage, usage_unit=usage_unit, sim_time_s=sim_time_s,
                          method=diagnosis.method, cost=float(diagnosis.cost), fit_rms=dict(diagnosis.rms),
                          discrepancy=discrepancy, warnings=list(diagnosis.warnings),
-                         source_path=str(source_path) if source_path is not None else None, source_hash=h)
+                         source_path=None if named is None else str(named), source_hash=h, live=source_path is None)
         return self.add_tests([rec], [f"diagnosis for actuator {actuator_id} at time_h={time_h:g}"], backfill) == 1
 
     def import_csv(self, path: str | Path, records: list[HealthRecord] | None = None, backfill: bool = False) -> int:

@@ -370,13 +370,15 @@ class MonitorNode(Node):
         hours = float(self.get_parameter("operating_hours").value)
         time_h = hours if hours >= 0 else start_s / 3600.0
         usage = float(self.get_parameter("usage").value)
+        # absolute: a reader of the history may run from another folder (as for the log's history metadata)
+        log = self.log_path.absolute() if self.log is not None else None
 
         def work():
             d, rep = analyse_window(r, disc, max_eff, **args)
             out = None
             if step is not None:   # in the worker too: the executor keeps serving messages
                 out = step.after_diagnosis(d, time_h, sim_time_s=start_s, response=r, usage=usage if usage >= 0 else None,
-                                           discrepancy=rep.verdict if rep is not None else None)
+                                           discrepancy=rep.verdict if rep is not None else None, log_path=log)
             return d, rep, out
         self._futures.append((w, self._worker.submit(work)))
 
