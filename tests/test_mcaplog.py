@@ -258,23 +258,12 @@ def test_write_accepts_dicts_numpy_and_decoded_messages(tmp_path, store):
 @pytest.fixture
 def ros(monkeypatch):
     """An isolated rclpy context with one node and a single-threaded executor."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
+    from rosnode import node_on_executor
 
     # nodes in one context still talk with discovery off; nothing leaves the process
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "OFF")
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
-    node = rclpy.create_node("mcaplog_test", context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    try:
-        yield node, ex
-    finally:
-        ex.shutdown()
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
+    with node_on_executor("mcaplog_test") as node_ex:
+        yield node_ex
 
 
 def test_write_raw_with_real_wire_bytes(tmp_path, ros, store):
