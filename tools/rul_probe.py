@@ -41,7 +41,7 @@ def draw_unit(rng: np.random.Generator, interval_h: float, cut=(0.4, 0.8)) -> tu
 
 def report(label: str, rows: list[dict], truth: dict[str, float], workdir: str | Path, settings=None) -> dict:
     """Write ``rows`` as a HISTORY.csv, prognose it and print: units given a RUL, coverage of the
-    5-95 % interval (no RUL = a miss), medians within +-20 % of ``truth`` [h], median/true
+    5-95 % interval (no RUL = a miss; "late": the failure before the 5 % quantile), medians within +-20 % of ``truth`` [h], median/true
     quantiles. Returns prognose's ``actuators`` object."""
     path = Path(workdir) / "history.csv"
     with open(path, "w", newline="") as f:
@@ -61,9 +61,11 @@ def report(label: str, rows: list[dict], truth: dict[str, float], workdir: str |
     given = [(F, r) for F, r in got if F["rul_median_h"] is not None]
     inside = sum((F["rul_p05_h"] or 0.0) <= r <= (F["rul_p95_h"] if F["rul_p95_h"] is not None else np.inf)
                  for F, r in given)
+    late = sum(r < (F["rul_p05_h"] or 0.0) for F, r in given)       # the unsafe side: failure before the 5 % quantile
     close = sum(abs(F["rul_median_h"] - r) <= 0.2 * r for F, r in given)
     q = np.percentile([F["rul_median_h"] / r for F, r in given], [10, 50, 90]) if given else [np.nan] * 3
-    print(f"{label} RUL given {len(given):2d}/{len(got)}; 90 % interval covers {inside / len(got):4.0%}; "
+    print(f"{label} RUL given {len(given):2d}/{len(got)}; 90 % interval covers {inside / len(got):4.0%} "
+          f"(late {late:2d}); "
           f"median within 20 % {close / len(got):4.0%}; median/true 10/50/90 % {q[0]:.2f} / {q[1]:.2f} / {q[2]:.2f}",
           flush=True)
     return out
