@@ -74,9 +74,23 @@ def test_profile_likelihood_equals_weighted_least_squares():
 
 def test_shape_inverse():
     t = np.linspace(0, 3, 31)
-    for kind, b in ((0, 1.0), (1, 0.05), (1, 6.0), (2, 0.5), (2, 3.0)):
-        np.testing.assert_allclose(shape_g_inv(kind, shape_g(kind, t, b), b), t, atol=1e-9)
+    for kind, b in ((0, 1.0), (1, 0.05), (1, 6.0), (2, 0.5), (2, 3.0), (3, 1.1), (3, 7.0)):
+        tt = t[t < b] if kind == 3 else t
+        np.testing.assert_allclose(shape_g_inv(kind, shape_g(kind, tt, b), b), tt, atol=1e-9)
         assert shape_g(kind, 1.0, b) == pytest.approx(1.0)
+
+
+def test_hyperbolic_shape_blows_up_at_c():
+    """g = t (c - 1) / (c - t): the Paris-law crack length a0 / (1 - t / c) less a0, normalised;
+    its log-growth rate g'' / g' = 2 / (c - t) rises without bound, and it is infinite from t = c
+    on, which the inverse maps back to c (every path crosses any threshold before the blow-up)."""
+    c = 1.5
+    t = np.array([0.0, 0.5, 1.0, 1.4, 1.499, 1.5, 2.0])
+    g = shape_g(3, t, c)
+    a = 1.0 / (1.0 - t[:5] / c) - 1.0
+    np.testing.assert_allclose(g[:5], a / a[2], rtol=1e-12)
+    assert np.all(np.isinf(g[5:]))
+    np.testing.assert_allclose(shape_g_inv(3, np.array([1e12, np.inf]), c), [c, c], rtol=1e-9)
 
 
 def test_inverse_gaussian_sampler_matches_scipy():
@@ -188,7 +202,9 @@ def simulate_fleet(rng, law, n_series, noise, process_nu=None, thr=0.8):
         life = 1000 * math.exp(0.3 * rng.standard_normal())
         t = np.arange(0, 4 * life, 1.0)
         x = t / life
-        mu = thr * {"linear": x, "exponential": np.expm1(2 * x) / np.expm1(2), "power": x ** 2}[law]
+        # paris: Paris-law crack growth a0 / (1 - t / t_c) - a0, its blow-up t_c 15 % of the life past the threshold
+        mu = thr * {"linear": x, "exponential": np.expm1(2 * x) / np.expm1(2), "power": x ** 2,
+                    "paris": (1 / (1 - np.minimum(x, 1.1499) / 1.15) - 1) / (1 / (1 - 1 / 1.15) - 1)}[law]
         if process_nu:
             k = np.concatenate([[0.0], np.cumsum(rng.gamma(np.diff(mu) / process_nu, process_nu))])
         else:
@@ -207,6 +223,7 @@ def simulate_fleet(rng, law, n_series, noise, process_nu=None, thr=0.8):
 
 
 # Measured coverage on 900 series (linear, exponential, linear + gamma 0.002, power + gamma 0.002):
+# 97.8, 96.9, 91.0, 91.8 % (2026-11-30, with the hyperbolic time scale in the Wiener model);
 # 98.4, 90.1, 92.3, 93.9 % (2026-11-29, the rate walk's passage reflected; with the folded diffusion
 # before: 97.9, 93.4, 91.7, 92.6 %). Until then the test drew 150 series: 98.7, 94.0, 92.0, 92.7 %,
 # the first one unit below the bound, and the reflected passage read 99.3 % there (unit 67: true RUL
@@ -224,6 +241,22 @@ def test_rul_intervals_are_calibrated_on_known_truth(law, nu):
     assert 0.80 <= cover <= 0.99, cover
     rel = np.median(np.abs(q[:, 1] - truth) / truth)
     assert rel < 0.25, rel
+
+
+@pytest.mark.parametrize("nu", [None, 0.002])
+def test_wear_that_blows_up_is_not_mostly_predicted_late(nu):
+    """On Paris-law wear (a finite-time blow-up, section 3 of docs/prognostics.md) every finite
+    shape puts the crossing late; the hyperbolic time scale of the default Wiener model brings the
+    share of series failing before their 5 % quantile from 78 % / 59 % (without it: deterministic /
+    gamma 0.002) to 28 % / 28 % (measured 2026-11-30, 300 series). Still far above 5 %: the blow-up
+    time is not in the data (docs/prognostics.md, "Laws the bench does not simulate")."""
+    s = load_settings()
+    assert s.models.wiener_hyperbolic_blowup
+    preds, truth = simulate_fleet(np.random.default_rng(11), "paris", 300, 0.005, nu)
+    predict_series(preds, np.full(len(preds), 0.8), 0, s)
+    q = np.array([p.quantiles() for p in preds])
+    late = np.mean(truth < q[:, 0])
+    assert late <= 0.45, late
 
 
 def test_batched_series_of_different_lengths_equal_their_own_fits():

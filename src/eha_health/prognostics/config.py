@@ -80,14 +80,16 @@ class PrognosisSettings:
 
 @dataclass(frozen=True)
 class ModelSettings:
-    names: tuple = _f("-", "degradation models fitted (linear, exponential, power, wiener)")
+    names: tuple = _f("-", "degradation models fitted (linear, exponential, power, hyperbolic, wiener)")
     criterion: str = _f("-", "model weights: aicc (Akaike weights) or evidence (Bayesian evidence on the grid)")
     aic_delta_max: float = _f("-", "criterion difference beyond which a model gets no weight")
     stochastic_prior: float = _f("-", "prior probability of the Wiener model (the path models share the rest)")
     exponential_rate: tuple = _f("1/span", "grid of the exponential model's rate b")
     power_exponent: tuple = _f("-", "grid of the power model's exponent b")
+    hyperbolic_blowup: tuple = _f("span", "grid of the hyperbolic model's blow-up time c (> 1, in data spans from onset)")
     wiener_exponential_rate: tuple = _f("1/span", "grid of the Wiener model's exponential time-scale rate b")
     wiener_exponent: tuple = _f("-", "grid of the Wiener model's power time-scale exponent b")
+    wiener_hyperbolic_blowup: tuple = _f("span", "grid of the Wiener model's hyperbolic time-scale blow-up c (> 1; [] none)")
     scatter: tuple = _f("-", "grid of the path models' extra iid scatter eta (K)")
     wiener_scatter: tuple = _f("-", "grid of the Wiener model's extra iid scatter eta (K)")
     diffusion: tuple = _f("-", "grid of the Wiener diffusion sigma (K sd over one data span)")
@@ -242,7 +244,7 @@ def _validate(s: Settings) -> None:
         raise PrognosticsError(f"prognosis.shared_wear_alpha must be within [0, 1) (0: off), got {p.shared_wear_alpha}")
     if p.next_check_h <= 0 or p.samples < 100:
         raise PrognosticsError("prognosis: next_check_h must be > 0 h and samples >= 100")
-    known = {"linear", "exponential", "power", "wiener"}
+    known = {"linear", "exponential", "power", "hyperbolic", "wiener"}
     if not s.models.names or set(s.models.names) - known:
         raise PrognosticsError(f"models.names: choose from {sorted(known)}")
     if not 0 < s.models.stochastic_prior < 1:
@@ -267,6 +269,7 @@ def _validate(s: Settings) -> None:
     _check(len(set(m.names)) == len(m.names), "models.names", list(m.names), "without a model named twice")
     for name, ok, what in (("exponential_rate", lambda v: v != 0, "finite and not 0"),
                            ("power_exponent", lambda v: v > 0, "> 0"),
+                           ("hyperbolic_blowup", lambda v: v > 1, "> 1 (data spans)"),
                            ("wiener_exponential_rate", lambda v: v != 0, "finite and not 0"),
                            ("wiener_exponent", lambda v: v > 0, "> 0"),
                            ("scatter", lambda v: v >= 0, ">= 0"),
@@ -277,6 +280,9 @@ def _validate(s: Settings) -> None:
         _check(len(grid) > 0 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
                                      and ok(v) for v in grid), f"models.{name}", list(grid),
                f"a non-empty list of numbers each {what}")
+    _check(all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 1
+               for v in m.wiener_hyperbolic_blowup), "models.wiener_hyperbolic_blowup", list(m.wiener_hyperbolic_blowup),
+           "a list (may be empty) of numbers each > 1 (data spans)")
     f = s.fleet
     _check(f.min_points >= 2, "fleet.min_points", f.min_points, ">= 2")
     _check(f.min_members >= 1, "fleet.min_members", f.min_members, ">= 1")

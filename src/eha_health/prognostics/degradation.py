@@ -11,7 +11,12 @@ and every model is one linear-Gaussian state space with a shape g(t~), g(0) = 0,
 * ``linear``      g = t~                              sigma = 0   (params l0, a, eta)
 * ``exponential`` g = expm1(b t~) / expm1(b)          sigma = 0   (l0, a, b, eta)
 * ``power``       g = t~^b                            sigma = 0   (l0, a, b, eta)
-* ``wiener``      g = t~^b, Wiener process u in the   sigma > 0   (l0, a, b, sigma, eta)
+* ``hyperbolic``  g = t~ (c - 1) / (c - t~), c > 1     sigma = 0   (l0, a, c, eta)
+  (a finite-time blow-up at t~ = c: Paris-law crack growth da/dN = C a^2 integrates to
+  a = a0 / (1 - N / N_c), Paris & Erdogan 1963; the exponential's wear rate grows at the
+  constant relative rate b, this one's at 2 / (c - t~), without bound. Not in the default
+  set: deterministic, it was too sure; by default it is a time scale of the Wiener model)
+* ``wiener``      g of any kind above, Wiener process u in the   sigma > 0   (l0, a, b, sigma, eta)
   time scale g (b = 1: the classic Wiener degradation model; first passage is inverse
   Gaussian in g)
 
@@ -48,7 +53,7 @@ from numba import njit
 
 from .config import ModelSettings
 
-MODELS = ("linear", "exponential", "power", "wiener")
+MODELS = ("linear", "exponential", "power", "hyperbolic", "wiener")
 KAPPA_A = 1.0e4          # prior variance of a [K^2]: diffuse against any rise K <= 1.5
 N_KEEP = 48              # grid cells kept per (series, model) for sampling
 # state rows: x0 x1 x2 (l0, a, u), p00 p01 p02 p11 p12 p22, log-likelihood
@@ -56,18 +61,23 @@ _X, _P, _LL = slice(0, 3), slice(3, 9), 9
 
 
 # ----------------------------------------------------------------------------- shapes
-LINEAR, EXPONENTIAL, POWER = 0, 1, 2     # shape kinds of g
+LINEAR, EXPONENTIAL, POWER, HYPERBOLIC = 0, 1, 2, 3     # shape kinds of g
+N_KINDS = 4
 
 
 def shape_g(kind, t, b) -> np.ndarray:
-    """g(t~; b) of a shape kind (0 linear t~, 1 exponential expm1(b t~)/expm1(b), 2 power t~^b)."""
+    """g(t~; b) of a shape kind (0 linear t~, 1 exponential expm1(b t~)/expm1(b), 2 power t~^b,
+    3 hyperbolic t~ (b - 1) / (b - t~), inf from the blow-up t~ = b on)."""
     t = np.maximum(t, 0.0)
     kind, b = np.asarray(kind), np.asarray(b, float)
     bb = np.where(kind == EXPONENTIAL, b, 1.0)
-    with np.errstate(over="ignore", invalid="ignore"):
+    cc = np.where(kind == HYPERBOLIC, b, 2.0)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
         e = np.expm1(bb * t) / np.expm1(bb)
         pw = t ** np.where(kind == POWER, b, 1.0)
-    return np.where(kind == EXPONENTIAL, e, np.where(kind == POWER, pw, t + 0.0 * b))
+        hy = np.where(t < cc, t * (cc - 1.0) / (cc - t), np.inf)
+    return np.where(kind == EXPONENTIAL, e, np.where(kind == POWER, pw, np.where(kind == HYPERBOLIC, hy,
+                                                                                  t + 0.0 * b)))
 
 
 def shape_g_inv(kind, g, b) -> np.ndarray:
@@ -81,6 +91,10 @@ def shape_g_inv(kind, g, b) -> np.ndarray:
         m = kind == POWER
         if m.any():
             out[m] = out[m] ** (1.0 / b[m])
+        m = kind == HYPERBOLIC
+        if m.any():     # g (c - t) = t (c - 1); g -> inf at t -> c
+            gm, c = out[m], b[m]
+            out[m] = np.where(np.isfinite(gm), gm * c / (gm + c - 1.0), c)
     return out
 
 
@@ -108,12 +122,13 @@ def _cells(kind: int, bs, etas, sigmas, rates=(0.0,)):
 def model_grids(ms: ModelSettings) -> dict[str, Grid]:
     """The grid of every model named in the settings.
 
-    linear / exponential / power: deterministic mean path (sigma = 0) plus iid scatter eta.
-    wiener: the Wiener process in the time scale g of any of the three shapes (kind and b
-    on the grid), sigma > 0, scatter ``wiener_scatter``.
+    linear / exponential / power / hyperbolic: deterministic mean path (sigma = 0) plus iid scatter eta.
+    wiener: the Wiener process in the time scale g of the linear, exponential or power shape (and
+    the hyperbolic one where ``wiener_hyperbolic_blowup`` is set; kind and b on the grid), sigma > 0,
+    scatter ``wiener_scatter``.
     """
     shapes = {"linear": (LINEAR, [1.0]), "exponential": (EXPONENTIAL, ms.exponential_rate),
-              "power": (POWER, ms.power_exponent)}
+              "power": (POWER, ms.power_exponent), "hyperbolic": (HYPERBOLIC, ms.hyperbolic_blowup)}
     out = {}
     for m in ms.names:
         if m == "wiener":
@@ -121,6 +136,8 @@ def model_grids(ms: ModelSettings) -> dict[str, Grid]:
             parts = [_cells(LINEAR, [1.0], ms.wiener_scatter, ms.diffusion, rs),
                      _cells(EXPONENTIAL, ms.wiener_exponential_rate, ms.wiener_scatter, ms.diffusion, rs),
                      _cells(POWER, ms.wiener_exponent, ms.wiener_scatter, ms.diffusion, rs)]
+            if ms.wiener_hyperbolic_blowup:
+                parts.append(_cells(HYPERBOLIC, ms.wiener_hyperbolic_blowup, ms.wiener_scatter, ms.diffusion, rs))
             kind, b, e, s, r = (np.concatenate(x) for x in zip(*parts))
             # l0, a, time scale (kind, b), eta, sigma, rate diffusion
             k = 2 + 1 + (len(ms.wiener_scatter) > 1) + 1 + (len(rs) > 1)
@@ -129,7 +146,7 @@ def model_grids(ms: ModelSettings) -> dict[str, Grid]:
             kind, b, e, s, r = _cells(kd, bs, ms.scatter, [0.0])
             k = 2 + (len(bs) > 1) + (len(ms.scatter) > 1)
         # prior: equal mass per shape kind, uniform over the cells of a kind (log-uniform grids)
-        counts = np.bincount(kind, minlength=3)
+        counts = np.bincount(kind, minlength=N_KINDS)
         out[m] = Grid(m, kind, b, e, s, r, k, -np.log(counts[kind] * len(np.unique(kind))))
     return out
 

@@ -12,7 +12,7 @@ of the RUL [h], each drawing its onset first:
 * model m drawn with its Akaike weight, grid cell with its posterior weight, and
   beta = (l0, a, u_now) ~ N(mean, cov) of that cell (the filter's posterior: it carries
   each test's diagnosis error);
-* path models (linear, exponential, power): the mean path l0 + a g(t~) reaches the
+* path models (linear, exponential, power, hyperbolic): the mean path l0 + a g(t~) reaches the
   threshold at t~* = g^-1((thr - l0) / a); RUL = (t~* - t~_now) T_s (0 if already above,
   no crossing if a <= 0);
 * Wiener: from X_now = l0 + a g_now + u_now and the current rate a + v_now, the rate's random
@@ -905,6 +905,7 @@ def trend_band(p: FaultPrediction, tau_h: np.ndarray, z: float = 1.645) -> tuple
         mean = H @ m[:2]
         var = np.einsum("ni,ij,nj->n", H, P[:2, :2], H)
     sd = np.sqrt(np.maximum(var, 0.0))
+    mean = np.where(np.isfinite(mean), mean, np.nan)     # a hyperbolic path is unbounded past its blow-up
     return mean, mean - z * sd, mean + z * sd
 
 
