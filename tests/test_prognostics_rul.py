@@ -768,3 +768,24 @@ def test_the_hyperbolic_path_model_can_be_chosen_and_plotted_past_its_blow_up(tm
     png = tmp_path / "p.png"
     plot_prognosis(h, png, "A", settings=s)
     assert png.stat().st_size > 10_000
+
+
+def test_prognose_on_threads_equals_the_serial_result(tmp_path, monkeypatch):
+    """The faults' predictions run on threads in parts of the fleet (rul._predict_faults): the
+    same object and the same samples and weights, to the last bit, as one thread gives."""
+    import os
+    from eha_health.bench.rul import synthetic_history_csv
+    from eha_health.prognostics import rul
+    path = synthetic_history_csv(tmp_path / "h.csv", 2 * rul.PARALLEL_MIN + 3, n_tests=12, seed=5)
+    out = {}
+    for cpus in (1, 2):
+        monkeypatch.setattr(os, "cpu_count", lambda: cpus)
+        out[cpus] = prognose(path, details=True)
+    assert json.dumps(out[1][0], sort_keys=True) == json.dumps(out[2][0], sort_keys=True)
+    for a, d in out[1][1].items():
+        for f, p in d.items():
+            if f == "history":
+                continue
+            q = out[2][1][a][f]
+            for x, y in ((p.samples, q.samples), (p.weights, q.weights)):
+                assert (x is None and y is None) or np.array_equal(x, y, equal_nan=True), (a, f)
