@@ -526,7 +526,7 @@ class MonitorNode(Node):
     def close(self) -> None:
         """Stop the worker, report what it finished and close the log (writes its summary).
 
-        A running prognosis (of a test, or the stored history's at start) ends early (its test is appended; the fleet-prior fit, up to ~20 s on
+        A running prognosis (of a test, or the stored history's at start) ends early (its test is appended; the fleet-prior fit, ~19 s on
         a 1000-actuator history, is cut short); the running diagnosis finishes and goes into the
         log; windows not yet started are dropped with a warning (their samples are in the log), so is
         a window cut off by the stop (its samples still arriving)."""
