@@ -170,6 +170,12 @@ def test_history_add_csv_and_mcap(tmp_path, capsys):
     code, out, _ = run(capsys, ["history", "add", str(tmp_path / "r1.csv"), "--actuator", "X", "--time-h", "200",
                                 *common])
     assert code == 0 and "already in" in out
+    # with --json the answer is the append's object (it was a plain line: not JSON)
+    code, out, _ = run(capsys, ["history", "add", str(tmp_path / "r1.csv"), "--actuator", "X", "--time-h", "200",
+                                "--json", *common])
+    res = json.loads(out)
+    assert code == 0 and res["added"] is False and res["diagnosis"] is None and res["time_h"] == 100.0
+    assert res["actuator_id"] == "X" and "already in" in res["reason"] and res["history"] == str(db)
     code, _, err = run(capsys, ["history", "add", str(tmp_path / "r1.csv"), "--actuator", "Y", "--time-h", "200",
                                 *common])
     assert code == 2 and "already in the history for actuator X" in err
@@ -319,6 +325,9 @@ def test_a_monitor_log_says_which_history_its_test_went_to(tmp_path, capsys):
     assert code == 0 and err == "" and rows_of(db) == before
     assert out == (f"{log} test 1 is already in {db} (actuator X, time_h 100, window stamp 7 s: metadata "
                    f"history/test_1, appended by the monitor): nothing added\n")      # no diagnosis printed
+    code, out, err = run(capsys, ["history", "add", str(log), "--history", str(db), "--json", *common])
+    res = json.loads(out)
+    assert code == 0 and res["added"] is False and res["time_h"] == 100.0 and "appended by the monitor" in res["reason"]
     # into another history (a merge): added, and said
     code, out, err = run(capsys, ["history", "add", str(log), "--history", str(other), *common])
     assert code == 0 and out.startswith("added: X at 100 h"), (out, err)

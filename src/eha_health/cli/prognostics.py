@@ -92,19 +92,19 @@ def cmd_history_add(args) -> int:
             if t["actuator_id"] != args.actuator:
                 raise UsageError(f"{path} is already in the history for actuator {t['actuator_id']}, "
                                  f"not {args.actuator}")
-            print(f"{path}{'' if tid is None else f' test {tid}'} is already in {db} (actuator {t['actuator_id']}, "
-                  f"time_h {t['time_h']:g}): nothing added")
-            return 0
+            return _already(args, db, t["actuator_id"], t["time_h"],
+                            f"{path}{'' if tid is None else f' test {tid}'} is already in {db} (actuator "
+                            f"{t['actuator_id']}, time_h {t['time_h']:g}): nothing added")
         if "time_h" in meta and st.holds_test(live or args.actuator, meta["time_h"], sim_s):
             # the monitor appended this test live (its row hashed by the channels, not by this file)
             if (live or args.actuator, meta["time_h"]) != (args.actuator, time_h):   # it would be stored twice
                 raise UsageError(f"{path}{'' if tid is None else f' test {tid}'} is already in the history: the "
                                  f"monitor appended it live for actuator {live or args.actuator} at time_h "
                                  f"{meta['time_h']:g} (metadata history/test_{tid}), not {args.actuator} at {time_h:g}")
-            print(f"{path} test {tid} is already in {db} (actuator {args.actuator}, time_h {time_h:g}, window "
-                  f"stamp {sim_s:g} s: metadata history/test_{tid}, appended by the monitor"
-                  f"{'' if logged is None or _same_file(logged, db) else f' to {logged}'}): nothing added")
-            return 0
+            return _already(args, db, args.actuator, time_h,
+                            f"{path} test {tid} is already in {db} (actuator {args.actuator}, time_h {time_h:g}, "
+                            f"window stamp {sim_s:g} s: metadata history/test_{tid}, appended by the monitor"
+                            f"{'' if logged is None or _same_file(logged, db) else f' to {logged}'}): nothing added")
         st.check_next_time(args.actuator, time_h, sim_s, str(path), backfill=args.backfill)   # before the diagnosis
         d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=progress(args))
         rec = HealthRecord(args.actuator, float(time_h), (0.0,) * 3, (0.0,) * 3, usage=usage)
@@ -127,6 +127,17 @@ def cmd_history_add(args) -> int:
     else:
         print(f"{'added' if added else 'already present'}: {args.actuator} at {time_h:g} h: {ks} ({d.method}) "
               f"-> {db}")
+    return 0
+
+
+def _already(args, db: Path, actuator: str, time_h: float, said: str) -> int:
+    """A recording the history holds already: nothing added, no diagnosis run; with ``--json`` the
+    same object as an append, ``added`` false, ``diagnosis`` null and ``reason`` the line."""
+    if args.json:
+        print(json.dumps({"added": False, "actuator_id": actuator, "time_h": float(time_h), "usage": None,
+                          "diagnosis": None, "history": str(db), "reason": said}))
+    else:
+        print(said)
     return 0
 
 
