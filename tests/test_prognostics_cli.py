@@ -176,6 +176,13 @@ def test_history_add_csv_and_mcap(tmp_path, capsys):
     res = json.loads(out)
     assert code == 0 and res["added"] is False and res["diagnosis"] is None and res["time_h"] == 100.0
     assert res["actuator_id"] == "X" and "already in" in res["reason"] and res["history"] == str(db)
+    # another recording at a stored time: refused before its diagnosis, with what to do
+    r0 = simulate(kind="reference", faults=Faults(k_gm=0.2), params=p, seed=9)
+    r0.to_csv(tmp_path / "r0.csv")
+    code, _, err = run(capsys, ["history", "add", str(tmp_path / "r0.csv"), "--actuator", "X", "--time-h", "100",
+                                "--backfill", *common])
+    assert code == 2 and "duplicate row: actuator X already has a test at time_h=100" in err, err
+    assert "give this one its --time-h" in err and len(err.strip().splitlines()) == 1
     code, _, err = run(capsys, ["history", "add", str(tmp_path / "r1.csv"), "--actuator", "Y", "--time-h", "200",
                                 *common])
     assert code == 2 and "already in the history for actuator X" in err

@@ -54,7 +54,7 @@ def _finite(v: float | None, name: str, minimum: float = 0.0) -> None:
 
 def cmd_history_add(args) -> int:
     from ..identification.diagnose import diagnose
-    from ..prognostics.records import HealthRecord, check_actuator_id
+    from ..prognostics.records import DuplicateRow, HealthRecord, check_actuator_id
     from ..prognostics.store import HistoryStore, recording_hash
     path = Path(args.run)
     if not path.is_file():
@@ -105,7 +105,11 @@ def cmd_history_add(args) -> int:
                             f"{path} test {tid} is already in {db} (actuator {args.actuator}, time_h {time_h:g}, "
                             f"window stamp {sim_s:g} s: metadata history/test_{tid}, appended by the monitor"
                             f"{'' if logged is None or _same_file(logged, db) else f' to {logged}'}): nothing added")
-        st.check_next_time(args.actuator, time_h, sim_s, str(path), backfill=args.backfill)   # before the diagnosis
+        try:                                                                     # before the diagnosis
+            st.check_next_time(args.actuator, time_h, sim_s, str(path), backfill=args.backfill)
+        except DuplicateRow as e:   # another recording at a stored time: the time is the user's to give
+            raise UsageError(f"{e}; each test of an actuator has its own operating time: give this one its "
+                             f"--time-h") from None
         d = diagnose(r, method=args.method, fitness=args.fitness, seed=args.seed, progress=progress(args))
         rec = HealthRecord(args.actuator, float(time_h), (0.0,) * 3, (0.0,) * 3, usage=usage)
         notes = st.usage_notes([rec]) + (st.backfill_notes([rec]) if args.backfill else [])
