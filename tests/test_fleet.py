@@ -367,18 +367,25 @@ def test_successive_batches_on_one_client_lose_no_task(bags, client, tmp_path):
         assert (s["diagnosed"], s["failed"]) == (1, 0), (i, s["failures"])
 
 
-def test_a_manifest_names_the_test_window_of_a_bag_of_several(client, tmp_path, capsys):
-    """A rig log of several tests without history records: the manifest's `test` column names
-    the window of each row; a window the bag lacks fails alone, naming the windows it has."""
+def _bag_of_two_tests(bag, metadata=None):
+    """An MCAP log of two noisy reference tests, windows 1 (K_BKL 0.2) and 2 (0.5), and ``metadata``."""
     from eha_health import Faults, load, simulate
     from eha_health.io.bagrun import write_run
     from eha_health.io.mcaplog import BagWriter
     p = load("reference").with_effect_names(["sensor_noise"])
-    bag, db = tmp_path / "rig_log.mcap", tmp_path / "h.sqlite"
     with BagWriter(bag) as w:
         for tid, k in ((1, 0.2), (2, 0.5)):
             write_run(w, simulate(kind="reference", faults=Faults(k_bkl=k), params=p, seed=tid), test_id=tid,
                       start_ns=tid * 8_000_000_000)
+        for name, rec in (metadata or {}).items():
+            w.add_metadata(name, rec)
+    return bag
+
+
+def test_a_manifest_names_the_test_window_of_a_bag_of_several(client, tmp_path, capsys):
+    """A rig log of several tests without history records: the manifest's `test` column names
+    the window of each row; a window the bag lacks fails alone, naming the windows it has."""
+    bag, db = _bag_of_two_tests(tmp_path / "rig_log.mcap"), tmp_path / "h.sqlite"
     (tmp_path / "manifest.csv").write_text("actuator_id,time_h,path,test\nR,10,rig_log.mcap,1\nR,20,rig_log.mcap,2\n"
                                            "R,30,rig_log.mcap,5\n")
     s = diagnose_fleet(read_manifest(tmp_path / "manifest.csv"), db, method=METHOD, client=client)
@@ -391,3 +398,20 @@ def test_a_manifest_names_the_test_window_of_a_bag_of_several(client, tmp_path, 
     (tmp_path / "bad.csv").write_text("actuator_id,time_h,path,test\nR,10,rig_log.mcap,two\n")
     with pytest.raises(FleetError, match="test 'two' is not a test window id"):
         read_manifest(tmp_path / "bad.csv")
+
+
+def test_a_window_the_monitor_cut_off_at_its_stop_is_not_diagnosed(client, tmp_path):
+    """A monitor log records a window its stop cut off (dropped/test_<id>): a manifest row naming
+    it, or a row without `test` (the bag's first window) where that one was cut off, fails alone
+    and says why, as `history add` refuses it (until 2026-11-30 it was diagnosed as a whole test)."""
+    from eha_health.io.bagrun import DROPPED_META
+    db = tmp_path / "h.sqlite"
+    _bag_of_two_tests(tmp_path / "mon.mcap", {DROPPED_META.format(1): {
+        "reason": "the monitor stopped while its samples were still arriving"}})
+    (tmp_path / "manifest.csv").write_text("actuator_id,time_h,path,test\nR,10,mon.mcap,1\nR,15,mon.mcap,\n"
+                                           "R,20,mon.mcap,2\n")
+    s = diagnose_fleet(read_manifest(tmp_path / "manifest.csv"), db, method=METHOD, client=client)
+    assert (s["diagnosed"], s["failed"]) == (1, 2), s
+    for f in s["failures"]:
+        assert "test window 1 was cut off by the monitor's stop (the monitor stopped while" in f["reason"], f
+    assert [round(r["k_bkl"], 1) for r in _rows(db)] == [0.5]

@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..io.bagrun import HISTORY_META, read_run, window_ids
+from ..io.bagrun import DROPPED_META, HISTORY_META, dropped_tests, read_run, window_ids
 from ..io.mcaplog import bag_metadata
 from ..physics.faults import FAULT_NAMES
 from ..signals.response import Response
@@ -155,10 +155,19 @@ def bag_windows(rec: Recording) -> list[Recording]:
             return [rec]
         if rec.window not in ids:
             raise FleetError(f"no complete test window {rec.window} (complete: {ids or 'none'})")
+        _refuse_cut_off(rec.path, rec.window)
         if len(ids) == 1:
             rec.window = None               # the bag's only test: the file is the recording
         return [rec]
-    if rec.actuator_id is not None or rec.path.suffix.lower() != ".mcap":
+    if rec.path.suffix.lower() != ".mcap":
+        return [rec]
+    if rec.actuator_id is not None:    # a manifest row without `test`: the bag's first window
+        try:
+            first = window_ids(rec.path)[:1]
+        except (OSError, ValueError):      # an unreadable bag fails in the batch, saying why
+            return [rec]
+        if first:
+            _refuse_cut_off(rec.path, first[0])
         return [rec]
     try:
         md = bag_metadata(rec.path)
@@ -185,6 +194,16 @@ def bag_windows(rec: Recording) -> list[Recording]:
                              ident.get("usage_unit"), None, "bag metadata", window=i,
                              sim_time_s=ident.get("sim_time_s")))
     return out
+
+
+def _refuse_cut_off(path: Path, window: int) -> None:
+    """A window the monitor recorded as cut off by its stop (:data:`~eha_health.io.bagrun.DROPPED_META`)
+    may lack samples it was still waiting for, even with both its marks in the log: not a whole
+    test (as ``history add`` refuses it)."""
+    why = dropped_tests(path).get(window)
+    if why is not None:
+        raise FleetError(f"test window {window} was cut off by the monitor's stop ({why}; metadata "
+                         f"{DROPPED_META.format(window)}): not a whole test")
 
 
 def find_recordings(paths: list[str | Path]) -> list[Recording]:
