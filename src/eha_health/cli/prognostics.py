@@ -64,21 +64,24 @@ def cmd_history_add(args) -> int:
     _finite(args.usage, "--usage")
     settings = _settings(args)
     db = _db(args, False, settings)
-    test = _test_to_add(path, args.test)
+    mcap = path.suffix.lower() == ".mcap"
+    if mcap:
+        from ..io.mcaplog import bag_metadata
+        md = bag_metadata(path)     # read once: the cut-off windows, the test's history record, the actuator
+    test = _test_to_add(path, args.test, md) if mcap else args.test
     r, _, notes = load_test(path, test)
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
     time_h, usage, sim_s, meta, live, logged = args.time_h, args.usage, None, {}, None, None
-    if path.suffix.lower() == ".mcap":
+    if mcap:
         from ..io.bagrun import history_record, history_times
-        from ..io.mcaplog import bag_metadata
-        record = history_record(path, r.meta.get("test_id"))
+        record = history_record(path, r.meta.get("test_id"), md)
         meta = history_times(path, r.meta.get("test_id"), record)
         logged = record.get("history") or None     # the file the monitor appended the test to
         time_h = meta.get("time_h") if time_h is None else time_h
         usage = meta.get("usage") if usage is None else usage
         sim_s = meta.get("sim_time_s")
-        live = bag_metadata(path).get("eha_health", {}).get("actuator_id") if "time_h" in meta else None
+        live = md.get("eha_health", {}).get("actuator_id") if "time_h" in meta else None
     if time_h is None:
         raise UsageError(f"{path}: no --time-h and the recording carries no operating time "
                          f"(MCAP metadata history/test_<id>)")
@@ -153,15 +156,14 @@ def _same_file(logged: str, db: Path) -> bool:
         return Path(logged).expanduser().resolve() == db.expanduser().resolve()
 
 
-def _test_to_add(path: Path, test: int | None) -> int | None:
+def _test_to_add(path: Path, test: int | None, metadata: dict) -> int | None:
     """The window of a bag to add: ``test``, or the first complete one, passing over the windows its
     monitor recorded as cut off by its stop (:data:`~eha_health.io.bagrun.DROPPED_META`): such a window
     may have both marks in the log and still lack samples the monitor was waiting for, so it is not
-    taken as a whole test. Each one passed over is said on stderr; none left is a usage error."""
-    if path.suffix.lower() != ".mcap":
-        return test
+    taken as a whole test. Each one passed over is said on stderr; none left is a usage error.
+    ``metadata``: the bag's :func:`~eha_health.io.mcaplog.bag_metadata`."""
     from ..io.bagrun import DROPPED_META, dropped_tests, window_ids
-    dropped = dropped_tests(path)
+    dropped = dropped_tests(path, metadata)
     if not dropped or (test is not None and test not in dropped):
         return test
     cut = "cut off by the monitor's stop"

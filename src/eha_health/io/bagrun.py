@@ -20,7 +20,7 @@ from ..physics.faults import FAULT_NAMES
 from ..physics.sequence import FDISequence
 from ..signals.response import Response
 from . import cdrbatch
-from .mcaplog import Bag, BagError, Scan, read_bag, scan_bag, schema_text
+from .mcaplog import Bag, BagError, Scan, bag_metadata, read_bag, scan_bag, schema_text
 from .window import NS, Samples, WindowError, assemble
 
 SIGNALS = (C.COMMAND, C.JOINT_STATE, C.PRESSURE, C.CURRENT)
@@ -46,11 +46,13 @@ HISTORY_REFUSED_META = "history_refused/test_{}"
 DROPPED_META = "dropped/test_{}"
 
 
-def history_record(path: str | Path, test_id: int | None) -> dict[str, str]:
-    """Test ``test_id``'s :data:`HISTORY_META` record of an MCAP log as written ({} without one)."""
+def history_record(path: str | Path, test_id: int | None, metadata: dict | None = None) -> dict[str, str]:
+    """Test ``test_id``'s :data:`HISTORY_META` record of an MCAP log as written ({} without one);
+    ``metadata``: the log's :func:`~eha_health.io.mcaplog.bag_metadata`, already read."""
     if test_id is None:
         return {}
-    return dict(read_bag(path, topics=[]).metadata.get(HISTORY_META.format(test_id)) or {})
+    md = bag_metadata(path) if metadata is None else metadata
+    return dict(md.get(HISTORY_META.format(test_id)) or {})
 
 
 def history_times(path: str | Path, test_id: int | None, record: dict[str, str] | None = None) -> dict[str, float]:
@@ -60,12 +62,13 @@ def history_times(path: str | Path, test_id: int | None, record: dict[str, str] 
     return {k: float(rec[k]) for k in ("time_h", "usage", "sim_time_s") if rec.get(k) not in (None, "", "None")}
 
 
-def dropped_tests(path: str | Path) -> dict[int, str]:
+def dropped_tests(path: str | Path, metadata: dict | None = None) -> dict[int, str]:
     """Test id -> reason of each window an MCAP log's :data:`DROPPED_META` records as cut off by the
-    monitor's stop ({} for a bag without any)."""
+    monitor's stop ({} for a bag without any); ``metadata``: the log's
+    :func:`~eha_health.io.mcaplog.bag_metadata`, already read."""
     prefix = DROPPED_META.format("")
     out = {}
-    for name, rec in read_bag(path, topics=[]).metadata.items():
+    for name, rec in (bag_metadata(path) if metadata is None else metadata).items():
         if name.startswith(prefix) and name[len(prefix):].isdigit():
             out[int(name[len(prefix):])] = (rec or {}).get("reason") or "no reason recorded"
     return dict(sorted(out.items()))
