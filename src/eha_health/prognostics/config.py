@@ -275,14 +275,14 @@ def _validate(s: Settings) -> None:
                            ("scatter", lambda v: v >= 0, ">= 0"),
                            ("wiener_scatter", lambda v: v >= 0, ">= 0"),
                            ("diffusion", lambda v: v > 0, "> 0"),
-                           ("rate_diffusion", lambda v: v >= 0, ">= 0")):
+                           ("rate_diffusion", lambda v: v >= 0, ">= 0"),
+                           ("wiener_hyperbolic_blowup", lambda v: v > 1, "> 1 (data spans)")):
         grid = getattr(m, name)
-        _check(len(grid) > 0 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-                                     and ok(v) for v in grid), f"models.{name}", list(grid),
-               f"a non-empty list of numbers each {what}")
-    _check(all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 1
-               for v in m.wiener_hyperbolic_blowup), "models.wiener_hyperbolic_blowup", list(m.wiener_hyperbolic_blowup),
-           "a list (may be empty) of numbers each > 1 (data spans)")
+        may_be_empty = name == "wiener_hyperbolic_blowup"     # the Wiener model's optional time scale
+        _check((may_be_empty or len(grid) > 0) and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and ok(v) for v in grid),
+            f"models.{name}", list(grid),
+            f"a {'list (may be empty)' if may_be_empty else 'non-empty list'} of numbers each {what}")
     f = s.fleet
     _check(f.min_points >= 2, "fleet.min_points", f.min_points, ">= 2")
     _check(f.min_members >= 1, "fleet.min_members", f.min_members, ">= 1")
