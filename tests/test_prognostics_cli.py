@@ -426,6 +426,28 @@ def test_settings_file_sets_the_requirements_and_the_prognosis(db, tmp_path, cap
         assert code == 2 and why in err and len(err.strip().splitlines()) == 1, (argv, err)
 
 
+def test_a_fault_gets_its_own_model_set_from_the_settings_file(db, tmp_path, capsys):
+    """fault_models: in a user's settings: gm fits only the linear path model, the other faults
+    (and the other actuators' data) are untouched; a bad block is one line, exit 2."""
+    y = tmp_path / "mine.yaml"
+    y.write_text("fault_models:\n  gm: {names: [linear]}\n")
+    code, out, _ = run(capsys, ["prognose", "--history", str(db), "--json", "--settings", str(y)])
+    mine = json.loads(out)["actuators"]
+    code0, out, _ = run(capsys, ["prognose", "--history", str(db), "--json"])
+    shared = json.loads(out)["actuators"]
+    assert code == code0 == 0 and set(mine) == set(shared)
+    for a in mine:
+        gm, gm0 = mine[a]["faults"]["gm"], shared[a]["faults"]["gm"]
+        assert gm["model"] == "linear" and gm["model_weights"] == {"linear": 1.0}, gm
+        assert gm0["model_weights"] != gm["model_weights"], gm0
+        assert gm["rul_median_h"] != gm0["rul_median_h"]
+        for f in ("fsj", "bkl"):
+            assert mine[a]["faults"][f] == shared[a]["faults"][f]
+    y.write_text("fault_models:\n  gm: {names: [linear, weibull]}\n")
+    code, out, err = run(capsys, ["prognose", "--history", str(db), "--json", "--settings", str(y)])
+    assert code == 2 and "fault_models.gm.names: choose from" in err and len(err.strip().splitlines()) == 1, err
+
+
 def test_an_argument_error_is_one_line_too(capsys):
     for argv, why in [(["prognose", "--next-check-h", "abc"], "invalid float value: 'abc'"),
                       (["history", "repair", "--actuator", "A", "--fault", "xx", "--time-h", "1"], "invalid choice: 'xx'"),

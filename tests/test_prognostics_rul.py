@@ -235,6 +235,13 @@ def test_settings_errors_name_the_problem(tmp_path):
     ({"history": {"default_std": -0.1}}, "history.default_std must be > 0"),
     ({"fleet": {"min_members": 0}}, "fleet.min_members must be >= 1"),
     ({"bench": {"n_units": -1}}, "bench.n_units must be >= 1"),
+    # a fault's own model set is checked as models: is, under its own name
+    ({"fault_models": {"fsj": {"names": ["gamma"]}}}, "fault_models.fsj.names: choose from"),
+    ({"fault_models": {"bkl": {"diffusion": [0.0]}}}, "fault_models.bkl.diffusion must be"),
+    ({"fault_models": {"gm": {"shape": 2}}}, "fault_models.gm: unknown setting(s) ['shape']"),
+    ({"fault_models": {"k_fsj": {"names": ["linear"]}}}, "fault_models: unknown fault(s) ['k_fsj']; faults: gm, fsj, bkl"),
+    ({"fault_models": {"fsj": ["wiener"]}}, "fault_models.fsj: expected a mapping"),
+    ({"fault_models": ["fsj"]}, "fault_models: expected a mapping of fault"),
 ])
 def test_settings_out_of_range_are_refused_by_name(over, why):
     with pytest.raises(PrognosticsError, match=re.escape(why)):

@@ -8,6 +8,7 @@ YAML of the same structure (partial allowed) and a nested ``overrides`` dict.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import functools
 import math
 import typing
@@ -18,7 +19,7 @@ from typing import Any
 
 import yaml
 
-from ..physics.faults import FAULT_UPPER
+from ..physics.faults import FAULT_KEYS, FAULT_UPPER
 
 
 class PrognosticsError(ValueError):
@@ -131,8 +132,14 @@ class Settings:
     history: HistorySettings = _f("-", "history store")
     prognosis: PrognosisSettings = _f("-", "RUL prediction")
     models: ModelSettings = _f("-", "degradation models")
+    fault_models: tuple = _f("-", "per fault, where set: (fault, ModelSettings) pairs, models: with the "
+                                  "fault's entries of fault_models: over them (models_for)")
     fleet: FleetSettings = _f("-", "fleet prior")
     bench: BenchSettings = _f("-", "validation harness")
+
+    def models_for(self, fault: str) -> ModelSettings:
+        """The degradation models of ``fault`` (gm, fsj, bkl): ``fault_models.<fault>`` over ``models``."""
+        return dict(self.fault_models).get(fault, self.models)
 
 
 # ----------------------------------------------------------------------------- YAML I/O
@@ -214,9 +221,34 @@ def load_settings(path: str | Path | None = None, overrides: dict | None = None)
     if not isinstance(reqs, list):
         raise PrognosticsError("requirements: expected a list of {name, metric, limit}")
     data["requirements"] = [_build(Requirement, r, f"requirements[{i}]") for i, r in enumerate(reqs)]
+    fm = data.get("fault_models")
+    data["fault_models"] = []                # built below, from the models block once that is read
     s = _build(Settings, data, "prognostics")
+    s = dataclasses.replace(s, fault_models=_fault_models(data["models"], fm))
     _validate(s)
     return s
+
+
+def _fault_models(models: dict, per_fault) -> tuple:
+    """``fault_models:`` -- per fault, models settings that differ from ``models:`` -- as
+    (fault, full ModelSettings) pairs in fault order."""
+    if per_fault is None:                    # "fault_models:" with nothing under it
+        return ()
+    if not isinstance(per_fault, dict):
+        raise PrognosticsError(f"fault_models: expected a mapping of fault ({', '.join(FAULT_KEYS)}) to "
+                               f"models settings, got {type(per_fault).__name__}")
+    unknown = sorted(map(str, set(per_fault) - set(FAULT_KEYS)))
+    if unknown:
+        raise PrognosticsError(f"fault_models: unknown fault(s) {unknown}; faults: {', '.join(FAULT_KEYS)}")
+    out = []
+    for f in FAULT_KEYS:
+        if f in per_fault:
+            over = per_fault[f] if per_fault[f] is not None else {}
+            if not isinstance(over, dict):
+                raise PrognosticsError(f"fault_models.{f}: expected a mapping of models settings "
+                                       f"(names:, grids), got {type(over).__name__}")
+            out.append((f, _build(ModelSettings, _merge(models, over), f"fault_models.{f}")))
+    return tuple(out)
 
 
 def _validate(s: Settings) -> None:
@@ -244,11 +276,6 @@ def _validate(s: Settings) -> None:
         raise PrognosticsError(f"prognosis.shared_wear_alpha must be within [0, 1) (0: off), got {p.shared_wear_alpha}")
     if p.next_check_h <= 0 or p.samples < 100:
         raise PrognosticsError("prognosis: next_check_h must be > 0 h and samples >= 100")
-    known = {"linear", "exponential", "power", "hyperbolic", "wiener"}
-    if not s.models.names or set(s.models.names) - known:
-        raise PrognosticsError(f"models.names: choose from {sorted(known)}")
-    if not 0 < s.models.stochastic_prior < 1:
-        raise PrognosticsError(f"models.stochastic_prior must be within (0, 1), got {s.models.stochastic_prior}")
     if not 0 < s.thresholds.default <= s.thresholds.search_max <= FAULT_UPPER:
         raise PrognosticsError(f"thresholds: need 0 < default <= search_max <= {FAULT_UPPER} (the identification bound)")
     t = s.thresholds
@@ -263,10 +290,26 @@ def _validate(s: Settings) -> None:
     _check(p.seed >= 0, "prognosis.seed", p.seed, ">= 0")
     # memory: a batch of 256 series holds samples x 30 floats each
     _check(p.samples <= 100_000, "prognosis.samples", p.samples, "within [100, 100000]")
-    m = s.models
-    _check(m.criterion in ("evidence", "aicc"), "models.criterion", m.criterion, "evidence or aicc")
-    _check(m.aic_delta_max > 0, "models.aic_delta_max", m.aic_delta_max, "> 0")
-    _check(len(set(m.names)) == len(m.names), "models.names", list(m.names), "without a model named twice")
+    _validate_models(s.models, "models")
+    for fault, m in s.fault_models:
+        _validate_models(m, f"fault_models.{fault}")
+    f = s.fleet
+    _check(f.min_points >= 2, "fleet.min_points", f.min_points, ">= 2")
+    _check(f.min_members >= 1, "fleet.min_members", f.min_members, ">= 1")
+    _check(f.use_below_points >= 0, "fleet.use_below_points", f.use_below_points, ">= 0")
+    _check(s.bench.n_units >= 1, "bench.n_units", s.bench.n_units, ">= 1")
+
+
+def _validate_models(m: ModelSettings, where: str) -> None:
+    """Checks of a models block (``models`` or ``fault_models.<fault>``)."""
+    known = {"linear", "exponential", "power", "hyperbolic", "wiener"}
+    if not m.names or set(m.names) - known:
+        raise PrognosticsError(f"{where}.names: choose from {sorted(known)}")
+    if not 0 < m.stochastic_prior < 1:
+        raise PrognosticsError(f"{where}.stochastic_prior must be within (0, 1), got {m.stochastic_prior}")
+    _check(m.criterion in ("evidence", "aicc"), f"{where}.criterion", m.criterion, "evidence or aicc")
+    _check(m.aic_delta_max > 0, f"{where}.aic_delta_max", m.aic_delta_max, "> 0")
+    _check(len(set(m.names)) == len(m.names), f"{where}.names", list(m.names), "without a model named twice")
     for name, ok, what in (("exponential_rate", lambda v: v != 0, "finite and not 0"),
                            ("power_exponent", lambda v: v > 0, "> 0"),
                            ("hyperbolic_blowup", lambda v: v > 1, "> 1 (data spans)"),
@@ -278,16 +321,12 @@ def _validate(s: Settings) -> None:
                            ("rate_diffusion", lambda v: v >= 0, ">= 0"),
                            ("wiener_hyperbolic_blowup", lambda v: v > 1, "> 1 (data spans)")):
         grid = getattr(m, name)
-        may_be_empty = name == "wiener_hyperbolic_blowup"     # the Wiener model's optional time scale
+        # the Wiener model's time scales other than the linear one may be left out ([]: none)
+        may_be_empty = name in ("wiener_exponential_rate", "wiener_exponent", "wiener_hyperbolic_blowup")
         _check((may_be_empty or len(grid) > 0) and all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and ok(v) for v in grid),
-            f"models.{name}", list(grid),
+            f"{where}.{name}", list(grid),
             f"a {'list (may be empty)' if may_be_empty else 'non-empty list'} of numbers each {what}")
-    f = s.fleet
-    _check(f.min_points >= 2, "fleet.min_points", f.min_points, ">= 2")
-    _check(f.min_members >= 1, "fleet.min_members", f.min_members, ">= 1")
-    _check(f.use_below_points >= 0, "fleet.use_below_points", f.use_below_points, ">= 0")
-    _check(s.bench.n_units >= 1, "bench.n_units", s.bench.n_units, ">= 1")
 
 
 def _check(ok: bool, name: str, value, need: str) -> None:

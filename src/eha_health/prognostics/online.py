@@ -30,9 +30,11 @@ class OnlineFault:
     """Degradation models of one fault since its onset anchor, updated test by test."""
 
     def __init__(self, tau_h, k, std, span_h: float | None = None, settings: Settings | None = None,
-                 regrid_factor: float = 2.0):
+                 regrid_factor: float = 2.0, fault: str | None = None):
         self.settings = settings or load_settings()
-        self.grids = model_grids(self.settings.models)
+        # the fault's own model set where fault_models: gives one (None: models:)
+        self.models = self.settings.models if fault is None else self.settings.models_for(fault)
+        self.grids = model_grids(self.models)
         self.regrid_factor = float(regrid_factor)
         self.tau = list(np.atleast_1d(np.asarray(tau_h, float)))
         self.y = list(np.atleast_1d(np.asarray(k, float)))
@@ -76,7 +78,7 @@ class OnlineFault:
         """Model fits and model weights (:func:`degradation.model_weights`)."""
         n = np.array([len(self.tau)])
         fits = [summarise(self.grids[m], self.state[m], self.g_last[m], n) for m in self.grids]
-        return fits, model_weights(fits, self.settings.models)
+        return fits, model_weights(fits, self.models)
 
     def series(self) -> Series:
         return Series(np.asarray(self.tau), np.asarray(self.y), np.asarray(self.s), self.span_h)

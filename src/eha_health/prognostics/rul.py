@@ -702,13 +702,14 @@ def _predict_prepared(preds: list[FaultPrediction], thresholds: np.ndarray, faul
         series += p.candidates
         owner += [j] * len(p.candidates)
     owner = np.asarray(owner)
-    fits, crit = fit_models(series, s.models)
+    models = s.models_for(FAULTS[fault_index])
+    fits, crit = fit_models(series, models)
     draws = Draws.make(s.prognosis.seed, fault_index, s.prognosis.samples)
     within = np.zeros_like(crit)
     joint = []
     for j in range(len(idx)):
         rows = np.nonzero(owner == j)[0]
-        w = akaike_weights(crit[rows].ravel(), s.models.aic_delta_max).reshape(len(rows), -1)
+        w = akaike_weights(crit[rows].ravel(), models.aic_delta_max).reshape(len(rows), -1)
         wc = w.sum(1)
         within[rows] = np.divide(w, wc[:, None], out=np.full_like(w, 1.0 / w.shape[1]), where=wc[:, None] > 0)
         joint.append((rows, w, wc))
