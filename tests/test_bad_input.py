@@ -23,9 +23,10 @@ def run():
     return simulate(faults=TRUTH)
 
 
-def write_window(w, r, tid, start_ns, log_ns, damage=None, skip_topic=None):
+def write_window(w, r, tid, start_ns, log_ns, damage=None, skip_topic=None, marks=("start", "end")):
     """One window to the contract, messages logged in the order written (so a
-    damaged stamp order survives a replay); returns the next free log time."""
+    damaged stamp order survives a replay), with the test-window ``marks`` given;
+    returns the next free log time."""
     stamps = start_ns + np.round(r.t * NS).astype(np.int64)
     pressure, current = r.pressure.copy(), r.current.copy()
     keep = np.ones(len(stamps), bool)
@@ -46,7 +47,8 @@ def write_window(w, r, tid, start_ns, log_ns, damage=None, skip_topic=None):
         if topic is not skip_topic:
             w.write("/" + topic.name, topic.type, msg, t)
         t += 1000
-    put(C.TEST_WINDOW, cv.window_msg(int(stamps[0]), "start", tid))
+    if "start" in marks:
+        put(C.TEST_WINDOW, cv.window_msg(int(stamps[0]), "start", tid))
     for i in range(n):
         s = int(stamps[i])
         put(C.COMMAND, cv.command_msg(s, r.command[i], "eha"))
@@ -54,7 +56,8 @@ def write_window(w, r, tid, start_ns, log_ns, damage=None, skip_topic=None):
         put(C.PRESSURE, cv.pressure_msg(s, pressure[i], "eha"))
         if keep[i]:
             put(C.CURRENT, cv.current_msg(s, current[i], "eha"))
-    put(C.TEST_WINDOW, cv.window_msg(int(stamps[n - 1]), "end", tid))
+    if "end" in marks:
+        put(C.TEST_WINDOW, cv.window_msg(int(stamps[n - 1]), "end", tid))
     return t
 
 
@@ -131,6 +134,36 @@ def test_diagnose_reads_a_good_bag_with_its_truth(bags, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["truth"] == {"k_gm": 0.0, "k_fsj": 0.6, "k_bkl": 0.0}
     assert abs(out["k_fsj"] - 0.6) <= 0.01 and out["k_gm"] <= 0.01 and out["k_bkl"] <= 0.01
+
+
+def test_a_bag_whose_window_marks_complete_no_window_is_refused_not_read_whole(run, tmp_path, capsys):
+    """Window marks without a complete window (a recording stopped mid-test, or started in one) were
+    read as a bag without marks, whole, with the note 'no test-window marks': a part of a test was
+    diagnosed and added as a test. Every reader refuses it now, naming the marks; a bag without
+    any mark is still read whole, and says so."""
+    import json
+    stopped, between, db = tmp_path / "stopped.mcap", tmp_path / "between.mcap", tmp_path / "h.sqlite"
+    with BagWriter(stopped) as w:        # every sample of test 1, then the recording stopped
+        write_window(w, run, 1, 0, 0, marks=("start",))
+    with BagWriter(between) as w:        # started in test 1, stopped in test 2
+        t = write_window(w, run, 1, 0, 0, marks=("end",))
+        write_window(w, run, 2, 10 * NS, t, marks=("start",))
+    for path, said in ((stopped, "test(s) 1 (start only)"), (between, "test(s) 1 (end only), 2 (start only)")):
+        for argv in (["diagnose", str(path), "--json"], ["discrepancy", str(path)],
+                     ["history", "add", str(path), "--history", str(db), "--actuator", "A", "--time-h", "5"]):
+            assert cli.main(argv) == 2, argv
+            cap = capsys.readouterr()
+            (line,) = cap.err.splitlines()
+            assert cap.out == "" and f"{path}: no complete test window: the marks on /eha/test_window are of " \
+                f"{said}, none with both its start and end mark" in line, line
+    assert not db.exists()
+    whole = tmp_path / "whole.mcap"
+    with BagWriter(whole) as w:
+        write_window(w, run, 1, 0, 0, marks=())
+    assert cli.main(["diagnose", str(whole), "--json"]) == 0
+    cap = capsys.readouterr()
+    assert f"note: {whole}: no test-window marks; using the whole record" in cap.err
+    assert abs(json.loads(cap.out)["k_fsj"] - 0.6) <= 0.01
 
 
 @pytest.mark.graph

@@ -400,6 +400,27 @@ def test_a_manifest_names_the_test_window_of_a_bag_of_several(client, tmp_path, 
         read_manifest(tmp_path / "bad.csv")
 
 
+def test_a_bag_whose_marks_complete_no_window_fails_alone(client, tmp_path):
+    """A rig log stopped mid-test (a start mark, no end mark, no dropped/ record) was read whole and
+    diagnosed as a test; its manifest row fails alone now, naming the marks it has."""
+    from eha_health import Faults, load, simulate
+    from eha_health.io.bagrun import write_run
+    from eha_health.io.mcaplog import BagWriter
+    from bagmarks import WithoutEnd
+    db = tmp_path / "h.sqlite"
+    _bag_of_two_tests(tmp_path / "whole.mcap")
+    with BagWriter(tmp_path / "stopped.mcap") as w:
+        write_run(WithoutEnd(w), simulate(kind="reference", faults=Faults(k_bkl=0.3),
+                                          params=load("reference").with_effect_names(["sensor_noise"]), seed=3), test_id=3)
+    (tmp_path / "manifest.csv").write_text("actuator_id,time_h,path\nR,10,stopped.mcap\nR,20,whole.mcap\n")
+    s = diagnose_fleet(read_manifest(tmp_path / "manifest.csv"), db, method=METHOD, client=client)
+    assert (s["diagnosed"], s["failed"]) == (1, 1), s
+    (f,) = s["failures"]
+    assert ("no complete test window: the marks on /eha/test_window are of test(s) 3 (start only), none with "
+            "both its start and end mark") in f["reason"], f
+    assert [round(r["k_bkl"], 1) for r in _rows(db)] == [0.2]
+
+
 def test_a_window_the_monitor_cut_off_at_its_stop_is_not_diagnosed(client, tmp_path):
     """A monitor log records a window its stop cut off (dropped/test_<id>): a manifest row naming
     it, or a row without `test` (the bag's first window) where that one was cut off, fails alone

@@ -257,8 +257,7 @@ def test_a_window_the_monitor_dropped_at_its_stop_is_not_added(tmp_path, capsys)
     marks in the log was diagnosed and appended as a whole test; now it is passed over, saying why."""
     from eha_health.io.bagrun import write_run
     from eha_health.io.mcaplog import BagWriter
-    from msg_bridge import contract as C
-    from msg_bridge import convert as cv
+    from bagmarks import WithoutEnd
     p = load("reference").with_effect_names(["sensor_noise"])
     reason = "the monitor stopped while it waited for its last samples"
     bag, one, db = tmp_path / "two.mcap", tmp_path / "one.mcap", tmp_path / "h.sqlite"
@@ -271,17 +270,10 @@ def test_a_window_the_monitor_dropped_at_its_stop_is_not_added(tmp_path, capsys)
         write_run(w, simulate(kind="reference", faults=Faults(k_gm=0.2), params=p, seed=5), test_id=4)
         w.add_metadata("dropped/test_4", {"reason": reason})
     # the monitor's usual case: the stop came before the end mark; its log's only window has none
-    # (read_run takes a bag without a complete window whole: this one was diagnosed as a test)
+    # (read_run took a bag without a complete window whole until 2026-12-07: this one was diagnosed as
+    # a test; read_run refuses it now, the dropped record says why first)
     no_end = tmp_path / "no_end.mcap"
     why_no_end = "the monitor stopped while its samples were still arriving (no end mark)"
-
-    class WithoutEnd:
-        def __init__(self, w):
-            self.w = w
-
-        def write(self, topic, typ, msg, ns):
-            if not (topic.endswith(C.TEST_WINDOW.name) and cv.window_from_msg(msg)[1] == "end"):
-                self.w.write(topic, typ, msg, ns)
     with BagWriter(no_end) as w:
         write_run(WithoutEnd(w), simulate(kind="reference", faults=Faults(k_gm=0.2), params=p, seed=6), test_id=2)
         w.add_metadata("dropped/test_2", {"reason": why_no_end})

@@ -210,8 +210,8 @@ def _channels(bag: Bag, names: dict[str, str], record: bool = False,
     return {c: p if isinstance(p, Samples) else Samples.of(p) for c, p in pairs.items()}
 
 
-def complete_windows(bag: Bag, topic: str | None) -> dict[int, dict]:
-    """Test id -> {'start': ns, 'end': ns} of the windows with both marks on ``topic``
+def window_marks(bag: Bag, topic: str | None) -> dict[int, dict]:
+    """Test id -> {'start': ns, 'end': ns} (the marks it has) of every window marked on ``topic``
     (the bag's test-window topic, from :func:`resolve_topics`; None: the bag has none)."""
     marks: dict[int, dict] = {}
     for i, msg in enumerate(bag.messages.get(topic, []) if topic else []):
@@ -220,7 +220,18 @@ def complete_windows(bag: Bag, topic: str | None) -> dict[int, dict]:
         except (ValueError, AttributeError) as e:
             raise WindowError(f"{topic} message {i}: {e}") from None
         marks.setdefault(tid, {})[event] = ns
-    return {tid: m for tid, m in sorted(marks.items()) if "start" in m and "end" in m}
+    return dict(sorted(marks.items()))
+
+
+def complete_windows(bag: Bag, topic: str | None) -> dict[int, dict]:
+    """Test id -> {'start': ns, 'end': ns} of the windows with both marks on ``topic``
+    (:func:`window_marks`)."""
+    return _complete(window_marks(bag, topic))
+
+
+def _complete(marks: dict[int, dict]) -> dict[int, dict]:
+    """The windows of :func:`window_marks` with both their marks."""
+    return {tid: m for tid, m in marks.items() if "start" in m and "end" in m}
 
 
 def window_ids(path: str | Path) -> list[int]:
@@ -234,7 +245,8 @@ def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence
     """The response of one test window of the bag at ``path``.
 
     ``test_id`` picks a window by its id; default the first complete one. A bag
-    without window marks is taken whole (first to last command sample). ``record``:
+    without window marks is taken whole (first to last command sample); one whose marks
+    complete no window (a recording stopped mid-test) is refused. ``record``:
     a measured rig record, which needs only command and joint state (position); the
     channels it lacks come out all NaN, a load force becomes ``Response.load``.
     ``partial``: a test to diagnose, read as a record when the bag lacks a measured
@@ -257,7 +269,14 @@ def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence
     scan.bag.require(*(names[t.name] for t in needed))
     notes = [f"{path}: {bag.truncated}; using the complete part"] if bag.truncated else []
     chans = _channels(bag, names, record, done)
-    wins = complete_windows(bag, names.get(C.TEST_WINDOW.name))
+    topic = names.get(C.TEST_WINDOW.name)
+    marks = window_marks(bag, topic)
+    wins = _complete(marks)
+    if marks and not wins:   # e.g. a recording stopped mid-test: a part of a test, not a whole record
+        said = ", ".join(f"{tid} ({next(iter(m))} only)" for tid, m in marks.items())
+        raise WindowError(f"{path}: no complete test window: the marks on {topic} are of test(s) {said}, none "
+                          f"with both its start and end mark: a part of a test, not read as a whole record"
+                          + (f" ({bag.truncated})" if bag.truncated else ""))
     if test_id is not None and test_id not in wins:
         raise WindowError(f"{path}: no complete test window {test_id} (complete: {sorted(wins) or 'none'})")
     if wins:
