@@ -118,6 +118,33 @@ def test_bad_import_is_one_line_and_leaves_the_store(db, tmp_path, capsys, rows,
     assert rows_of(db) == before
 
 
+def test_a_duplicate_row_of_an_import_says_what_to_do(db, tmp_path, capsys):
+    """A row at a time its actuator has a test at -- in the history, or in a row of the file before
+    it -- was refused without a word of what to do (history add's refusal says it): the line now
+    names the row and says to correct its time_h or remove it, and that a row repeating another's
+    test (the same values) is the same test twice."""
+    before = rows_of(db)
+    row = ["A0", 1000, 0.1, 0, 0, 0.01, 0.01, 0.01]
+    fix = "each test of an actuator has its own operating time: "
+    stored = ("the history); the history holds another test there (the same one, with the same K, would add "
+              f"nothing); {fix}correct this row's time_h, or remove the row")
+    for name, rows, extra, said in (
+            ("two", [row, [*row[:2], 0.2, *row[3:]]], [], "{f} line 3: duplicate row: actuator A0 already has a "
+             "test at time_h=1000 ({f} line 2); " + fix + "correct the time_h of one of the two rows, or remove one"),
+            ("same", [row, row], [], "{f} line 3: duplicate row: actuator A0 already has a test at time_h=1000 "
+             "({f} line 2); it repeats the test of {f} line 2 (the same values): remove one of the two rows"),
+            ("stored", [["A0", 440, 0.3, 0, 0, 0.01, 0.01, 0.01]], [],
+             "{f} line 2: duplicate row: actuator A0 already has a test at time_h=440 (" + stored),
+            ("backfill", [["A0", 30, 0.1, 0, 0, 0.01, 0.01, 0.01], ["A0", 40, 0.3, 0, 0, 0.01, 0.01, 0.01]],
+             ["--backfill"], "{f} line 3: duplicate row: actuator A0 already has a test at time_h=40 (" + stored)):
+        f = write_csv(tmp_path / f"{name}.csv", rows)
+        code, out, err = run(capsys, ["history", "import", str(f), "--history", str(db), *extra])
+        assert code == 2 and out == "", (out, err)
+        (line,) = err.splitlines()
+        assert line == "eha-health history: error: " + said.format(f=f.name), line
+        assert rows_of(db) == before
+
+
 def test_bad_commands_exit_2(db, tmp_path, capsys):
     before = rows_of(db)
     cases = [

@@ -214,25 +214,44 @@ def cmd_history_list(args) -> int:
 
 def cmd_history_import(args) -> int:
     from ..prognostics.history_csv import read_history_csv, read_maintenance_csv
-    from ..prognostics.records import superseded_notes
+    from ..prognostics.records import DuplicateRow, superseded_notes
     from ..prognostics.store import HistoryStore
     settings = _settings(args)
     db = _db(args, False, settings)
     # both files read before the store is opened: a bad file creates no store
     maint = read_maintenance_csv(args.maintenance) if args.maintenance else None
-    recs = read_history_csv(args.file)
+    try:
+        recs = read_history_csv(args.file)
+    except DuplicateRow as e:
+        raise UsageError(f"{e}; {_csv_duplicate_hint(e)}") from None
     _maintenance_beside(args.file, args.maintenance)
     with HistoryStore(db, settings) as st:
         notes = st.usage_notes(recs, maint) + (st.backfill_notes(recs) if args.backfill else [])
         older = superseded_notes([(x["actuator_id"], x["time_h"], x["fault"]) for x in st.list_maintenance()],
                                  maint or [])
-        n, m = st.import_files(args.file, args.maintenance, recs, maint, backfill=args.backfill)
+        try:
+            n, m = st.import_files(args.file, args.maintenance, recs, maint, backfill=args.backfill)
+        except DuplicateRow as e:
+            raise UsageError(f"{e}; {_csv_duplicate_hint(e)}") from None
         total = st.count_tests()
     for note in (notes if n else []) + (older if m else []):
         print(f"note: {note}", file=sys.stderr)
     extra = f" and {m} maintenance action(s) from {args.maintenance}" if args.maintenance else ""
     print(f"imported {n} new test(s) from {args.file}{extra} into {db} ({total} tests in all)")
     return 0
+
+
+def _csv_duplicate_hint(e) -> str:
+    """What to do about a HISTORY.csv row at a time its actuator has a test at already
+    (:class:`~eha_health.prognostics.records.DuplicateRow`): in the history (with other values: the
+    same test adds nothing), or in a row of the file before it -- the same test twice, or two."""
+    if e.held is None:
+        return ("the history holds another test there (the same one, with the same K, would add nothing); each "
+                "test of an actuator has its own operating time: correct this row's time_h, or remove the row")
+    if e.record is not None and e.record == e.held:
+        return f"it repeats the test of {e.held.where} (the same values): remove one of the two rows"
+    return ("each test of an actuator has its own operating time: correct the time_h of one of the two rows, "
+            "or remove one")
 
 
 def _maintenance_beside(history_csv, maintenance) -> None:

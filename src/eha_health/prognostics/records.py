@@ -234,28 +234,34 @@ BACKFILL_HINT = "a test older than the latest stored one goes in with --backfill
 
 
 class DuplicateRow(PrognosticsError):
-    """A test at an actuator's time that is taken already (a caller may say how to give it another)."""
+    """A test at an actuator's time that is taken already (a caller may say how to give it another):
+    ``record`` the refused test, ``held`` the one of the same batch before it at that time (None: the
+    history's, or not known)."""
+
+    def __init__(self, message: str, record: "HealthRecord | None" = None, held: "HealthRecord | None" = None):
+        super().__init__(message)
+        self.record, self.held = record, held
 
 
 def check_order(items: list[tuple[str, HealthRecord]], latest: dict | None = None) -> None:
     """Times must increase strictly per actuator within a batch (and after ``latest``). A usage
     that falls is not refused: :func:`usage_fall_notes` says it (a replaced unit's first tests
     may come before its replacement is known)."""
-    last: dict[str, tuple[float, str]] = {}
+    last: dict[str, tuple[float, str, HealthRecord | None]] = {}
     for where, r in items:
         prev = last.get(r.actuator_id)
         if prev is None and latest and r.actuator_id in latest:
-            prev = (latest[r.actuator_id], "the history")
+            prev = (latest[r.actuator_id], "the history", None)
         if prev is not None:
-            t0, w0 = prev
+            t0, w0, r0 = prev
             if r.time_h == t0:
                 raise DuplicateRow(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
-                                   f"time_h={r.time_h:g} ({w0})")
+                                   f"time_h={r.time_h:g} ({w0})", r, r0)
             if r.time_h < t0:
                 hint = f"; {BACKFILL_HINT}" if w0 == "the history" else ""
                 raise PrognosticsError(f"{where}: times out of order: actuator {r.actuator_id} test at "
                                        f"time_h={r.time_h:g} comes after one at {t0:g} ({w0}){hint}")
-        last[r.actuator_id] = (r.time_h, where)
+        last[r.actuator_id] = (r.time_h, where, r)
 
 
 def usage_fall_notes(tests: dict[str, list[tuple[float, float, bool]]], replaced: dict[str, list[float]]) -> list[str]:

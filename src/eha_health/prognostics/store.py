@@ -418,7 +418,7 @@ class HistoryStore:
         for where, r in items:
             if self._has_test_at(r.actuator_id, r.time_h):
                 raise DuplicateRow(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
-                                   f"time_h={r.time_h:g} (the history)")
+                                   f"time_h={r.time_h:g} (the history)", r)
 
     def usage_notes(self, records: list[HealthRecord], maintenance: list[MaintenanceRecord] | None = None) -> list[str]:
         """Notes for records whose usage count falls against the test before them, or below which
