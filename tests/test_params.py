@@ -72,6 +72,14 @@ def test_user_yaml_overrides(tmp_path):
     y.write_text("jack: [1, 2\n")
     with pytest.raises(ValueError, match="YAML"):
         load("reference", path=y)
+    # a key written twice: PyYAML kept the last without a word; refused, both lines named
+    y.write_text("jack:\n  mass: 7.5\njack:\n  mass: 9.0\n")
+    with pytest.raises(ValueError, match=r"key 'jack' written twice \(lines 1 and 3\)"):
+        load("reference", path=y)
+    # a merge key's values may still be overridden (YAML's << merge)
+    y.write_text("base: &b {mass: 7.5}\njack:\n  <<: *b\n  mass: 8.0\n")
+    with pytest.raises(ValueError, match="base"):       # the anchor's own key is unknown to the parameters
+        load("reference", path=y)
 
 
 def test_dt_must_divide_sample_period():

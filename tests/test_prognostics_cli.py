@@ -462,6 +462,13 @@ def test_a_fault_gets_its_own_model_set_from_the_settings_file(db, tmp_path, cap
         assert gm["rul_median_h"] != gm0["rul_median_h"]
         for f in ("fsj", "bkl"):
             assert mine[a]["faults"][f] == shared[a]["faults"][f]
+    # a block written twice (PyYAML kept the last without a word)
+    y.write_text("fault_models:\n  gm: {names: [linear]}\n  gm: {names: [wiener]}\n")
+    code, out, err = run(capsys, ["prognose", "--history", str(db), "--json", "--settings", str(y)])
+    assert code == 2 and "key 'gm' written twice (lines 2 and 3)" in err and len(err.strip().splitlines()) == 1, err
+    y.write_text("prognosis: {min_tests: 50}\nfleet: {min_points: 4}\nprognosis: {seed: 1}\n")
+    code, out, err = run(capsys, ["prognose", "--history", str(db), "--json", "--settings", str(y)])
+    assert code == 2 and "key 'prognosis' written twice (lines 1 and 3)" in err, err
     y.write_text("fault_models:\n  gm: {names: [linear, weibull]}\n")
     code, out, err = run(capsys, ["prognose", "--history", str(db), "--json", "--settings", str(y)])
     assert code == 2 and "fault_models.gm.names: choose from" in err and len(err.strip().splitlines()) == 1, err
@@ -522,9 +529,13 @@ def test_a_misspelled_std_column_is_refused_and_a_plot_without_suffix_is_a_png(d
 
 def test_a_plot_that_cannot_be_written_is_one_line(db, tmp_path, capsys):
     (tmp_path / "d.png").mkdir()
-    for target in (tmp_path / "d.png", tmp_path / "d.png" / "x" / "f.png"):
+    (tmp_path / "plots").mkdir()
+    for target, why in ((tmp_path / "d.png", "is a directory"), (tmp_path / "d.png" / "x" / "f.png", "no such directory"),
+                        # a directory without a suffix: it wrote plots.png beside it (probe 12)
+                        (tmp_path / "plots", "is a directory; --plot takes a file name")):
         code, out, err = run(capsys, ["prognose", "--history", str(db), "--plot", str(target)])
-        assert code == 2 and str(target) in err and len(err.strip().splitlines()) == 1, err
+        assert code == 2 and str(target) in err and why in err and len(err.strip().splitlines()) == 1, err
+    assert not (tmp_path / "plots.png").exists()
 
 
 def test_one_actuator_on_the_usage_clock_is_answered_alone(tmp_path, capsys):

@@ -237,6 +237,11 @@ def test_settings_errors_name_the_problem(tmp_path):
     ({"bench": {"n_units": -1}}, "bench.n_units must be >= 1"),
     # a fault's own model set is checked as models: is, under its own name
     ({"fault_models": {"fsj": {"names": ["gamma"]}}}, "fault_models.fsj.names: choose from"),
+    ({"fault_models": {"fsj": {"names": []}}}, "fault_models.fsj.names is empty"),
+    ({"models": {"names": [["wiener"]]}}, "models.names: choose from"),
+    ({"prognosis": {"samples": 1}}, "prognosis.samples must be within [100, 100000], got 1"),
+    ({"prognosis": {"next_check_h": 0.0}}, "prognosis.next_check_h must be > 0 h, got 0.0"),
+    ({"prognosis": {"min_tests": -1}}, "prognosis.min_tests must be >= 3 (a trend needs three points), got -1"),
     ({"fault_models": {"bkl": {"diffusion": [0.0]}}}, "fault_models.bkl.diffusion must be"),
     ({"fault_models": {"gm": {"shape": 2}}}, "fault_models.gm: unknown setting(s) ['shape']"),
     ({"fault_models": {"k_fsj": {"names": ["linear"]}}}, "fault_models: unknown fault(s) ['k_fsj']; faults: gm, fsj, bkl"),

@@ -24,6 +24,15 @@ def test_missing_column_is_named_with_what_the_file_needs(tmp_path):
         list(csv_rows(p, ("a", "b"), TableError, need="a table needs a, b"))
 
 
+def test_an_empty_file_is_said_to_be_empty(tmp_path):
+    # it read "missing column(s) a, b; the header reads ''" (probe 12)
+    p = tmp_path / "t.csv"
+    for text in ("", "\n\n", "  \r\n"):
+        p.write_text(text)
+        with pytest.raises(TableError, match=r"^.*t\.csv: the file is empty \(no header, no rows\) \(a table\)$"):
+            list(csv_rows(p, ("a", "b"), TableError, need="a table"))
+
+
 def test_extra_values_name_the_line_and_rows_before_it_were_read(tmp_path):
     p = tmp_path / "t.csv"
     p.write_text("a,b\n1,2\n3,4,5\n")

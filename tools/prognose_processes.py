@@ -27,6 +27,9 @@ passage. Cases:
                  0.1-0.2 (a partial repair nobody recorded) and wear goes on at its rate; a test
                  every 40 h, cut at 65-90 % of the (later) end of life
   partial_t2     the same on gamma_t2's mean ~ t^2 (nu 0.001)
+  pause          gamma (nu 0.001, linear mean), no wear for 20-40 % of the life from a uniform 25-50 %
+                 of it, then wear again at the same rate; a test every 40 h (an independent probe,
+                 2026-12-07, found late misses just after the wear resumes)
   usage_seasons  gamma (nu 0.001) in the usage, not the hours: the usage rate [usage/h] is
                  lognormal(0, 0.7) per 200-h season about 1; tests every 50 h carry the usage
                  (compare --clock time and --clock usage)
@@ -65,6 +68,7 @@ CASES = {
     "partial_repair": ("partial_repair", 0.005, 40.0, (0.65, 0.9)),
     "partial_t2": ("partial_t2", 0.005, 40.0, (0.65, 0.9)),
     "usage_seasons": ("usage_seasons", 0.005, 50.0, (0.3, 0.85)),
+    "pause": ("pause", 0.005, 40.0, (0.3, 0.85)),
 }
 
 
@@ -109,6 +113,10 @@ def latent_path(law: str, rng: np.random.Generator, life: float):
         usage = np.concatenate([[0.0], np.cumsum(per_h)])
         # gamma wear per unit of usage; its mean reaches the threshold at the usage of hour ``life``
         inc = _gamma_steps(rng, THRESHOLD / usage[int(life)] * per_h, 0.001)
+    elif law == "pause":
+        p0 = rng.uniform(0.25, 0.5) * life
+        change = (p0, p0 + rng.uniform(0.2, 0.4) * life)      # no wear from p0 to the resumption
+        inc = np.where((t[1:] > change[0]) & (t[1:] <= change[1]), 0.0, _gamma_steps(rng, np.full(n - 1, rate), 0.001))
     elif law == "exp":
         b = rng.uniform(2.0, 4.0)
         inc = _gamma_steps(rng, np.diff(THRESHOLD * np.expm1(b * t / life) / np.expm1(b)), 0.0005)
@@ -141,6 +149,7 @@ def fleet(case: str, units: int, rng: np.random.Generator) -> tuple[list[dict], 
                         | ({} if usage is None else {"usage": round(float(usage[int(ti)]), 3)}))
         truth[u] = eol - times[-1]
         changes[u] = (bool(times[-1] < change) if law == "two_stage" else
+                      (*change, times[-1]) if law == "pause" else
                       (change, interval) if law.startswith("partial") else
                       float(usage[int(eol)] - usage[int(times[-1])]) if usage is not None else None)
     return rows, truth, changes
@@ -176,14 +185,25 @@ def main() -> None:
                 aside = sum(bool(got[u].get("outliers_h")) for u in truth)
                 print(f"  the partial repair said (unrecorded_repair_h within 2 tests of it): {said} of {len(truth)}; "
                       f"tests set aside as failed diagnoses: {aside}", flush=True)
+            elif CASES[case][0] == "pause":
+                groups = {"history ends before the pause": lambda p0, p1, te: te < p0,
+                          "history ends in the pause": lambda p0, p1, te: p0 <= te < p1,
+                          "ends within 100 h of the resumption": lambda p0, p1, te: p1 <= te < p1 + 100.0,
+                          "ends later": lambda p0, p1, te: te >= p1 + 100.0}
+                for label, keep in groups.items():
+                    _split(label, [u for u in truth if keep(*before[u])], truth, got)
             elif any(v is not None for v in before.values()):
                 for label, keep in (("history ends before the change", True), ("history ends after it", False)):
-                    sub = [u for u in truth if before[u] is keep]
-                    inside = [(got[u]["rul_p05_h"] or 0.0) <= truth[u] <= (got[u]["rul_p95_h"] or np.inf)
-                              if got[u]["rul_median_h"] is not None else False for u in sub]
-                    late = sum(got[u]["rul_p05_h"] is not None and truth[u] < got[u]["rul_p05_h"] for u in sub)
-                    print(f"  {label}: {len(sub)} units, 90 % interval covers {np.mean(inside):4.0%}, "
-                          f"{late} with the true RUL below the 5 % quantile (late)", flush=True)
+                    _split(label, [u for u in truth if before[u] is keep], truth, got)
+
+
+def _split(label: str, sub: list[str], truth: dict, got: dict) -> None:
+    """One line: the coverage and the late misses of the units ``sub``."""
+    inside = [(got[u]["rul_p05_h"] or 0.0) <= truth[u] <= (got[u]["rul_p95_h"] or np.inf)
+              if got[u]["rul_median_h"] is not None else False for u in sub]
+    late = sum(got[u]["rul_p05_h"] is not None and truth[u] < got[u]["rul_p05_h"] for u in sub)
+    print(f"  {label}: {len(sub)} units, 90 % interval covers {np.mean(inside) if sub else 0:4.0%}, "
+          f"{late} with the true RUL below the 5 % quantile (late)", flush=True)
 
 
 if __name__ == "__main__":

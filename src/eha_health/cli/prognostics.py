@@ -386,6 +386,12 @@ def cmd_prognose(args) -> int:
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
     plotted = None
+    if args.plot:                   # said before the work, not after it
+        out = Path(args.plot).expanduser()
+        if out.is_dir():
+            raise UsageError(f"{args.plot}: is a directory; --plot takes a file name, e.g. {out / 'prognosis.png'}")
+        if not out.parent.is_dir():
+            raise UsageError(f"{args.plot}: cannot write the plot (no such directory {out.parent})")
     if args.plot and not Path(args.plot).suffix:
         args.plot += ".png"         # what matplotlib writes; the path said is the path written
     if args.plot:
@@ -480,7 +486,8 @@ def register(sub) -> None:
     p.add_argument("--next-check-h", type=float, help="hours to the next check (p_fail_next; default "
                                                       "prognosis.next_check_h of data/prognostics.yaml)")
     p.add_argument("--plot", help="PNG per fault: history, trend and band, threshold, RUL distribution "
-                                  "(of --actuator, default the first)")
+                                  "(of --actuator, default the first); another suffix (.pdf, .svg, .jpg) writes "
+                                  "that format, none adds .png")
     p.add_argument("--clock", choices=("time", "usage"), help="fit wear against time_h or against the tests' "
                    "usage (wear that follows flight hours or cycles; RUL in hours at each unit's usage rate); "
                    "default prognosis.clock of the settings (time)")

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 
-import yaml
+from ..physics.yamlfile import safe_load
 
 #: Most effects one analysis adds, by default (``eha-health discrepancy --max-effects``).
 DEFAULT_MAX_EFFECTS = 2
@@ -47,12 +47,12 @@ class Settings:
 
 @functools.lru_cache(maxsize=None)
 def _packaged_settings() -> dict:
-    return yaml.safe_load(resources.files("eha_health").joinpath("data/discrepancy.yaml").read_text()) or {}
+    return safe_load(resources.files("eha_health").joinpath("data/discrepancy.yaml").read_text()) or {}
 
 
 def fdi_settings(path: str | Path | None = None) -> Settings:
     """Settings for FDI tests of the shipped monitor: thresholds and the model's residual floor."""
-    data = yaml.safe_load(Path(path).read_text()) if path else _packaged_settings()
+    data = safe_load(Path(path).read_text()) if path else _packaged_settings()
     fl = {k: float(v) for k, v in (data.get("floor") or {}).items()}
     ef = {e: {k: float(v) for k, v in (chans or {}).items()} for e, chans in (data.get("effect_floor") or {}).items()}
     th = data.get("thresholds") or {}

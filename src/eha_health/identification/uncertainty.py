@@ -19,9 +19,9 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ..physics.faults import FAULT_NAMES
+from ..physics.yamlfile import safe_load
 
 #: The error bars' Jacobian steps this many optimiser steps (0.005 for a coefficient): the
 #: slope over the error bars' own scale, not over the finer stick-slip roughness the
@@ -119,7 +119,7 @@ def _error_file(path: str | None, method: str | None = None) -> dict:
     where = path or "data/model_error.yaml"
     text = Path(path).read_text() if path else resources.files("eha_health").joinpath(
         "data/model_error.yaml").read_text()
-    data = yaml.safe_load(text) or {}
+    data = safe_load(text) or {}
     methods = data.get("methods") or {}
     if not isinstance(methods, dict):
         raise ValueError(f"model error file {where}: methods must map a method name to its error terms")

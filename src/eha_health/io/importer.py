@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from ..physics.yamlfile import safe_load
 from ..signals.response import Response
 
 #: SI target of each importable channel and the units accepted for it (factor to SI).
@@ -58,7 +59,7 @@ def load_map(path: str | Path) -> dict:
     if not path.is_file():
         raise ImportError_(f"{path}: no such map file")
     try:
-        m = yaml.safe_load(path.read_text())
+        m = safe_load(path.read_text())
     except yaml.YAMLError as e:
         raise ImportError_(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
     if not isinstance(m, dict) or not isinstance(m.get("channels"), dict):

@@ -26,6 +26,8 @@ from typing import Any
 
 import yaml
 
+from .yamlfile import safe_load
+
 
 def _f(unit: str, doc: str, lo: float | None = None, hi: float | None = None,
        lo_open: bool = False):
@@ -361,7 +363,7 @@ def _deep_merge(base: dict, over: dict) -> dict:
 def _read_yaml(path) -> dict:
     try:
         text = Path(path).read_text() if not hasattr(path, "read_text") else path.read_text()
-        data = yaml.safe_load(text)
+        data = safe_load(text)
     except yaml.YAMLError as e:
         raise ValueError(f"{path}: not valid YAML ({e})") from None
     return data or {}

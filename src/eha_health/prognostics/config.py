@@ -1,8 +1,8 @@
 """Prognostics settings: ``data/prognostics.yaml`` read into typed frozen dataclasses.
 
 One source of truth: every default lives in the YAML shipped with the package (read with
-``yaml.safe_load`` only); the dataclasses carry the unit and a one-line doc of each field in
-its metadata. :func:`load_settings` reads the shipped file, optionally merged with a user
+``physics.yamlfile.safe_load``: safe, and a key written twice is refused); the dataclasses carry
+the unit and a one-line doc of each field in its metadata. :func:`load_settings` reads the shipped file, optionally merged with a user
 YAML of the same structure (partial allowed) and a nested ``overrides`` dict.
 """
 from __future__ import annotations
@@ -20,6 +20,7 @@ from typing import Any
 import yaml
 
 from ..physics.faults import FAULT_KEYS, FAULT_UPPER
+from ..physics.yamlfile import safe_load
 
 
 class PrognosticsError(ValueError):
@@ -195,7 +196,7 @@ def _merge(base: dict, over: dict) -> dict:
 
 def _read(path) -> dict:
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        data = safe_load(path.read_text(encoding="utf-8"))
     except (OSError, yaml.YAMLError, UnicodeDecodeError) as e:
         raise PrognosticsError(f"{path}: cannot read settings ({e.__class__.__name__}: {str(e).splitlines()[0]})") \
             from None
@@ -262,7 +263,7 @@ def _validate(s: Settings) -> None:
     if p.clock not in ("time", "usage"):
         raise PrognosticsError(f"prognosis.clock must be time or usage, got {p.clock!r}")
     if p.min_tests < 3:
-        raise PrognosticsError("prognosis.min_tests must be >= 3 (a trend needs three points)")
+        raise PrognosticsError(f"prognosis.min_tests must be >= 3 (a trend needs three points), got {p.min_tests}")
     if not 0 < p.warn_p_fail <= p.error_p_fail <= 1:
         raise PrognosticsError("prognosis: need 0 < warn_p_fail <= error_p_fail <= 1")
     if not p.onset_chi2 >= 0:
@@ -274,8 +275,7 @@ def _validate(s: Settings) -> None:
                                "(outlier_sigma 0: none set aside, no unrecorded repair)")
     if not 0 <= p.shared_wear_alpha < 1:
         raise PrognosticsError(f"prognosis.shared_wear_alpha must be within [0, 1) (0: off), got {p.shared_wear_alpha}")
-    if p.next_check_h <= 0 or p.samples < 100:
-        raise PrognosticsError("prognosis: next_check_h must be > 0 h and samples >= 100")
+    _check(p.next_check_h > 0, "prognosis.next_check_h", p.next_check_h, "> 0 h")
     if not 0 < s.thresholds.default <= s.thresholds.search_max <= FAULT_UPPER:
         raise PrognosticsError(f"thresholds: need 0 < default <= search_max <= {FAULT_UPPER} (the identification bound)")
     t = s.thresholds
@@ -289,7 +289,7 @@ def _validate(s: Settings) -> None:
     _check(p.onset_delta >= 0, "prognosis.onset_delta", p.onset_delta, ">= 0")
     _check(p.seed >= 0, "prognosis.seed", p.seed, ">= 0")
     # memory: a batch of 256 series holds samples x 30 floats each
-    _check(p.samples <= 100_000, "prognosis.samples", p.samples, "within [100, 100000]")
+    _check(100 <= p.samples <= 100_000, "prognosis.samples", p.samples, "within [100, 100000]")
     _validate_models(s.models, "models")
     for fault, m in s.fault_models:
         _validate_models(m, f"fault_models.{fault}")
@@ -303,8 +303,11 @@ def _validate(s: Settings) -> None:
 def _validate_models(m: ModelSettings, where: str) -> None:
     """Checks of a models block (``models`` or ``fault_models.<fault>``)."""
     known = {"linear", "exponential", "power", "hyperbolic", "wiener"}
-    if not m.names or set(m.names) - known:
-        raise PrognosticsError(f"{where}.names: choose from {sorted(known)}")
+    if not m.names:
+        raise PrognosticsError(f"{where}.names is empty: name at least one model of {sorted(known)}")
+    unknown = [n for n in m.names if not isinstance(n, str) or n not in known]
+    if unknown:
+        raise PrognosticsError(f"{where}.names: choose from {sorted(known)}, got {unknown!r}")
     if not 0 < m.stochastic_prior < 1:
         raise PrognosticsError(f"{where}.stochastic_prior must be within (0, 1), got {m.stochastic_prior}")
     _check(m.criterion in ("evidence", "aicc"), f"{where}.criterion", m.criterion, "evidence or aicc")

@@ -1045,6 +1045,7 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
             wiener = p.model == "wiener"     # its past is the data; its trend starts at the last test
             tau = np.linspace(cs.tau_h[-1] if wiener else 0.0, end, 200)
             mean, lo, hi = trend_band(p, tau)
+            lo = np.maximum(lo, 0.0)           # a coefficient K is >= 0 (0: healthy)
             ax.plot(t0 + tau, mean, color="C0", label=f"trend ({p.model})")
             ax.fill_between(t0 + tau, lo, hi, color="C0", alpha=0.2, label="90 % band")
             if p.onset_weights is not None and len(p.onset_weights) > 1:   # where the wear began
@@ -1057,11 +1058,15 @@ def plot_prognosis(history, path, actuator: str | None = None, next_check_h: flo
                 ax2.hist(h.time_h[-1] + fin, bins=40, weights=None if p.weights is None else
                          p.weights[np.isfinite(ruls)], color="C1", alpha=0.35)
                 ax2.set_yticks([])
-            hours = "" if unit == "h" else f" = {q[1]:.0f} h [{q[0]:.0f}, {q[2]:.0f}]"
-            ax.set_title(f"{name} {f}: RUL median {qa[1]:.0f} {unit} [{qa[0]:.0f}, {qa[2]:.0f}]{hours} (5-95 %)",
+            fh = format_hours          # 3 significant digits below 100: a rig's life may be hours or less
+            hours = "" if unit == "h" else f" = {fh(q[1])} h [{fh(q[0])}, {fh(q[2])}]"
+            ax.set_title(f"{name} {f}: RUL median {fh(qa[1])} {unit} [{fh(qa[0])}, {fh(qa[2])}]{hours} (5-95 %)",
                          fontsize=9)
         else:
             ax.set_title(f"{name} {f}: {p.reason}", fontsize=8)
+        # the band may run far past the threshold up to the 95 % quantile's time: keep the data's scale
+        top = 1.25 * max(p.threshold or 0.0, float(np.nanmax(h.k[:, fi] + h.std[:, fi])))
+        ax.set_ylim(-0.03 * top, top)
         ax.set_ylabel(f"K_{f.upper()}")
         ax.legend(fontsize=7, loc="upper left")
     axes[-1].set_xlabel(("usage (the fit's clock)" if unit == "usage" else "time [h]")

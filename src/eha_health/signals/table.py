@@ -37,6 +37,8 @@ def csv_rows(path: str | Path, required: tuple[str, ...], error: type[Exception]
         line = data[:e.start].count(b"\n") + 1
         raise error(f"{path} line {line}: not UTF-8 text (byte 0x{data[e.start]:02x}): save it as "
                     f"CSV UTF-8 (names with accents would be misread)") from None
+    if not text.strip():
+        raise error(f"{path}: the file is empty (no header, no rows)" + (f" ({need})" if need else ""))
     last_line = text.count("\n") + (0 if text.endswith(("\n", "\r")) else 1)
     cut = not text.endswith(("\n", "\r"))      # no end of line after the last row: maybe a truncated file
     with io.StringIO(text, newline="") as f:
