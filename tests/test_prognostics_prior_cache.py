@@ -105,23 +105,28 @@ def test_an_actuator_that_leaves_the_history_leaves_the_prior(tmp_path):
 
 
 def test_a_refit_asked_to_stop_leaves_the_cache_as_it_was_and_batches_change_nothing(tmp_path, monkeypatch):
-    from eha_health.prognostics import prior_cache
-    monkeypatch.setattr(prior_cache, "BATCH", 5)       # 24 actuators: 5 batches per fault
+    import os
+    from eha_health.prognostics import prior_cache, rul
+    monkeypatch.setattr(prior_cache, "BATCH", 5)       # 24 actuators: 5 batches
+    monkeypatch.setattr(rul, "PARALLEL_MIN", 2)        # each batch's faults on threads, in parts of 2-3
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
     s = load_settings()
     csvp = synthetic_history_csv(tmp_path / "h.csv", N, n_tests=12, seed=7)
     with HistoryStore(tmp_path / "a.db", s) as st:
         st.import_csv(csvp)
         hist = st.history()
     asks = []
-    cache = FleetPriorCache(s, cancelled=lambda: asks.append(1) or len(asks) > 7)
-    with pytest.raises(prior_cache.Cancelled, match="stopped after 34 of 72 actuator-faults"):
+    cache = FleetPriorCache(s, cancelled=lambda: asks.append(1) or len(asks) > 3)
+    with pytest.raises(prior_cache.Cancelled, match="stopped after 15 of 24 actuators"):
         cache.priors(hist)
-    assert len(asks) == 8 and cache.refitted == 0
+    assert len(asks) == 4 and cache.refitted == 0
     asks.clear()
     cache.cancelled = None
     whole = cache.priors(hist)          # the stopped refit left nothing behind: all 24 refitted
     assert cache.refitted == N
-    same(whole, fleet_priors(hist, s))  # in batches of 5 or all at once: the same prior to the bit
+    monkeypatch.setattr(os, "cpu_count", lambda: 1)
+    # in batches of 5 on threads, or all at once on one thread: the same prior to the bit
+    same(whole, fleet_priors(hist, s))
 
 
 def test_prognose_asks_a_cache_for_the_prior_only_when_a_fault_takes_it(tmp_path):
