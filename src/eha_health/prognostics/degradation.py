@@ -204,12 +204,13 @@ def kf_step(st: np.ndarray, g_prev, g, y, r, sigma2, q, active=None) -> None:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _filter_cells(st, g, y, r, mask, eta2, sig2, q, start):  # pragma: no cover - compiled
+def _filter_cells(st, g, gi, y, r, mask, eta2, sig2, q, start):  # pragma: no cover - compiled
     """:func:`kf_step` over points ``start..N-1`` for every series and cell, in place (the filter
     every fit and the online tracker run; kf_step is the readable reference the tests hold it to): the same
     arithmetic in the same order, a scalar loop per cell instead of numpy temporaries per step
-    (the temporaries were 2/3 of a 1000-actuator prognosis). st [NROW, S, C], g [S, C, N]."""
-    n_s, n_c, n_k = g.shape
+    (the temporaries were 2/3 of a 1000-actuator prognosis). st [NROW, S, C], g [S, U, N]: cell c's
+    time scale is g[:, gi[c], :] (the grid's cells share a few shapes)."""
+    n_s, n_k, n_c = g.shape[0], g.shape[2], len(gi)
     P = np.empty((4, 4))
     x = np.empty(4)
     ph = np.empty(4)
@@ -226,8 +227,8 @@ def _filter_cells(st, g, y, r, mask, eta2, sig2, q, start):  # pragma: no cover 
             ll = st[14, i_s, c]
             for k in range(start, n_k):
                 act = mask[i_s, k]
-                gk = g[i_s, c, k]
-                dg = max(gk - g[i_s, c, k - 1], 0.0)
+                gk = g[i_s, gi[c], k]
+                dg = max(gk - g[i_s, gi[c], k - 1], 0.0)
                 yk = y[i_s, k] if act else 0.0
                 rk = r[i_s, k] + eta2[c] if act else 1e300
                 # predict: F = I + dg e_u e_v', Q = diag(0, 0, sigma2 dg, q dg)
@@ -324,20 +325,35 @@ def _batch(series: list[Series]):
     return t, y, r, mask
 
 
+def grid_shapes(grid: Grid, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The grid's distinct time scales at normalised times t [s, N]: g [s, U, N] and the shape of
+    each cell [C] (cell c's g is g[:, shape[c], :])."""
+    ug, inv = np.unique(np.stack([grid.kind, grid.b]), axis=1, return_inverse=True)
+    return shape_g(ug[0][None, :, None], t[:, None, :], ug[1][None, :, None]), inv.ravel()
+
+
 def grid_g(grid: Grid, t: np.ndarray) -> np.ndarray:
     """g of every cell at normalised times t [s, N] -> [s, C, N] (distinct shapes computed once)."""
-    ug, inv = np.unique(np.stack([grid.kind, grid.b]), axis=1, return_inverse=True)
-    return shape_g(ug[0][None, :, None], t[:, None, :], ug[1][None, :, None])[:, inv.ravel(), :]
+    g, shape = grid_shapes(grid, t)
+    return g[:, shape, :]
 
 
 def run_filters(grid: Grid, g: np.ndarray, y: np.ndarray, r: np.ndarray, mask: np.ndarray,
-                st: np.ndarray | None = None, start: int = 1) -> np.ndarray:
-    """Filter every cell over points ``start..N-1`` (state ``st`` after point start-1, else fresh)."""
+                st: np.ndarray | None = None, start: int = 1, shape: np.ndarray | None = None) -> np.ndarray:
+    """Filter every cell over points ``start..N-1`` (state ``st`` after point start-1, else fresh).
+
+    ``g``: every cell's time scale [s, C, N] (:func:`grid_g`), or with ``shape`` the distinct ones
+    [s, U, N] and each cell's (:func:`grid_shapes`), which the filter reads in place: spread to
+    the cells, g was copied twice (the indexing, then to C order), 1.6 GB each on a 1000-actuator
+    prognosis (the same values)."""
     eta2 = np.ascontiguousarray(grid.eta ** 2, float)
     if st is None:
         st = kf_init(y[:, :1], r[:, :1] + eta2[None, :], (len(y), len(grid)))
+    if shape is None:
+        shape = np.arange(g.shape[1])
     # padded rows (mask False): no time passes (g constant) and the point carries no information
-    _filter_cells(st, np.ascontiguousarray(g, float), np.ascontiguousarray(y, float), np.ascontiguousarray(r, float),
+    _filter_cells(st, np.ascontiguousarray(g, float), np.ascontiguousarray(shape, np.int64),
+                  np.ascontiguousarray(y, float), np.ascontiguousarray(r, float),
                   np.ascontiguousarray(mask, np.bool_), eta2, np.ascontiguousarray(grid.sigma ** 2, float),
                   np.ascontiguousarray(grid.rate_sd ** 2, float), start)
     return st
@@ -391,9 +407,9 @@ def fit_model(series: list[Series], grid: Grid, chunk_cells: int = 400_000) -> M
     parts = []
     for a in range(0, len(y), step):
         sl = slice(a, min(len(y), a + step))
-        g = grid_g(grid, t[sl])                                             # [s, C, N]
-        st = run_filters(grid, g, y[sl], r[sl], mask[sl])
-        parts.append(summarise(grid, st, g[:, :, -1], mask[sl].sum(1)))
+        g, shape = grid_shapes(grid, t[sl])                                 # [s, U, N], [C]
+        st = run_filters(grid, g, y[sl], r[sl], mask[sl], shape=shape)
+        parts.append(summarise(grid, st, g[:, shape, -1], mask[sl].sum(1)))
     return concat_fits(parts)
 
 
