@@ -253,15 +253,11 @@ def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, 
     t_now = np.array([s.tau_h[-1] for s in series]) / span
     cum_models = np.cumsum(model_w, -1)
     cum_models[:, -1] = 1.0
-    z0, z1, z2 = draws.z[None, :, 0], draws.z[None, :, 1], draws.z[None, :, 2]
     for a in range(0, S, CHUNK):
         sl = slice(a, min(S, a + CHUNK))
         n = sl.stop - sl.start
-        rows = np.arange(n)[:, None]
         which = _pick(cum_models[sl], draws.u_model)
         rul = np.full((n, M), np.inf)
-        tn = np.broadcast_to(t_now[sl, None], (n, M))
-        th = thr[sl, None]
         for mi, f in enumerate(fits):
             use = which == mi
             if not use.any():
@@ -269,24 +265,30 @@ def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, 
             cum = np.cumsum(f.weight[sl], -1)
             cum[:, -1] = 1.0
             c = _pick(cum, draws.u_cell)
-            l00, l10, l11 = (v[rows, c] for v in _chol2(f.cov2[sl]))
-            m2 = f.mean2[sl][rows, c]
-            p0 = m2[..., 0] + l00 * z0                      # path: l0; wiener: X_now
-            p1 = m2[..., 1] + l10 * z0 + l11 * z1           # path: a;  wiener: current rate
-            b, kind, gn = f.b[sl][rows, c], f.kind[sl][rows, c], f.g_now[sl][rows, c]
+            # this model's samples only (row ri, sample si, cell ci), in the order of the whole
+            # chunk: each element's arithmetic is the one the whole chunk had, the others' is not done
+            ri, si = np.nonzero(use)
+            at = (ri, c[ri, si])
+            zs = draws.z[si]
+            l00, l10, l11 = (v[at] for v in _chol2(f.cov2[sl]))
+            m2 = f.mean2[sl][at]
+            p0 = m2[..., 0] + l00 * zs[:, 0]                # path: l0; wiener: X_now
+            p1 = m2[..., 1] + l10 * zs[:, 0] + l11 * zs[:, 1]   # path: a;  wiener: current rate
+            b, kind, gn = f.b[sl][at], f.kind[sl][at], f.g_now[sl][at]
+            tn, th = t_now[sl][ri], thr[sl][ri]
             with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
                 if f.model == "wiener":
-                    sig, rq = f.sigma[sl][rows, c], f.rate_sd[sl][rows, c]
+                    sig, rq = f.sigma[sl][at], f.rate_sd[sl][at]
                     d = th - p0
                     # the rate's own random walk adds q dg^3 / 3 to the level variance at dg: each
                     # sample's smooth path X_now + rate dg + z sqrt(q / 3) dg^(3/2) (its rate kept
                     # from turning negative) holds it at every dg, and the diffusion sigma spreads
                     # the passage about that path's
                     mean = np.full(d.shape, np.inf)
-                    need = use & (d > 0) & (p1 > 0)         # this model's samples still to cross
-                    mean[need] = rate_walk_passage(d[need], p1[need], np.broadcast_to(z2, d.shape)[need], rq[need])
-                    dg = np.where(sig > 0, inverse_gaussian(mean, d * d / (sig * sig), draws.z_ig[None, :],
-                                                            draws.u_ig[None, :]), mean)
+                    need = (d > 0) & (p1 > 0)               # this model's samples still to cross
+                    mean[need] = rate_walk_passage(d[need], p1[need], zs[need, 2], rq[need])
+                    dg = np.where(sig > 0, inverse_gaussian(mean, d * d / (sig * sig), draws.z_ig[si],
+                                                            draws.u_ig[si]), mean)
                     ok = (d > 0) & (p1 > 0) & np.isfinite(mean)
                     t_star = shape_g_inv(kind, np.where(ok, gn + dg, 0.0), b)
                     r = np.where(d <= 0, 0.0, np.where(ok, t_star - tn, np.inf))
@@ -295,8 +297,7 @@ def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, 
                     ok = (level < th) & (p1 > 0)
                     t_star = shape_g_inv(kind, np.where(ok, (th - p0) / p1, 0.0), b)
                     r = np.where(level >= th, 0.0, np.where(p1 > 0, t_star - tn, np.inf))
-            r = np.where(np.isfinite(r), np.maximum(r, 0.0), np.inf)
-            rul = np.where(use, r, rul)
+            rul[at[0], si] = np.where(np.isfinite(r), np.maximum(r, 0.0), np.inf)
         out[sl] = rul * span[sl, None]
     return out
 
