@@ -265,3 +265,21 @@ def test_plot_marks_the_repair_and_the_tests_set_aside(tmp_path):
     # one onset candidate of this history has weight 1 + 2e-16: its shade (alpha) above 1 broke the plot
     plot_prognosis(h, tmp_path / "p.png", "A")
     assert (tmp_path / "p.png").stat().st_size > 10_000
+
+
+def test_the_short_median_is_numpys_to_the_bit():
+    """scatter._median (np.median's steps without its general path) against np.median: signed
+    zeros, infinities, NaN of either sign, odd and even lengths, rows of a sliding window."""
+    from numpy.lib.stride_tricks import sliding_window_view
+    from eha_health.prognostics.scatter import _median
+    rng = np.random.default_rng(0)
+    vals = np.array([0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, -np.float64(np.nan), 1e-320, 1e308, 0.1, 0.3])
+    with np.errstate(all="ignore"):
+        for trial in range(3000):
+            n = int(rng.integers(1, 14))
+            x = rng.choice(vals, n) if trial % 2 else np.round(rng.normal(size=n), 1)
+            a, b = np.median(x), _median(x)
+            assert type(a) is type(b) and a.tobytes() == b.tobytes(), x
+            rows = rng.choice(vals, (3, n)) if trial % 3 else sliding_window_view(rng.choice(vals, n + 3), n)
+            a, b = np.median(rows, axis=1), _median(rows, axis=1)
+            assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), rows
