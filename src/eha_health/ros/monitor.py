@@ -128,7 +128,7 @@ class MonitorNode(Node):
         self._closing = False
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eha-diagnose")
         # the stored history's RUL, published before the first test (a restarted monitor gave none: probe 11),
-        # in a thread of its own: in the diagnosis worker its fleet-prior fit (~19 s on 1000 actuators) held
+        # in a thread of its own: in the diagnosis worker its fleet-prior fit (~20 s on 1000 actuators) held
         # up the first test's diagnosis. Started by the first poll, so a node whose __init__ fails after
         # this line leaves no fit running that nothing would stop.
         self._start_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eha-stored")
@@ -526,7 +526,7 @@ class MonitorNode(Node):
     def close(self) -> None:
         """Stop the worker, report what it finished and close the log (writes its summary).
 
-        A running prognosis (of a test, or the stored history's at start) ends early (its test is appended; the fleet-prior fit, ~19 s on
+        A running prognosis (of a test, or the stored history's at start) ends early (its test is appended; the fleet-prior fit, ~20 s on
         a 1000-actuator history, is cut short); the running diagnosis finishes and goes into the
         log; windows not yet started are dropped with a warning (their samples are in the log), so is
         a window cut off by the stop (its samples still arriving)."""
