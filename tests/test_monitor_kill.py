@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eha_health.io.bagrun import complete_windows, recorded_results, resolve_topics
+from eha_health.io.bagrun import complete_windows, recorded_results, resolve_topics, window_marks
 from eha_health.io.mcaplog import BagError, read_bag
 from eha_health.physics.faults import Faults
 from eha_health.prognostics.store import list_tests
@@ -86,7 +86,7 @@ def test_monitor_killed_mid_window_keeps_its_complete_windows_and_a_restart_diag
         assert len(bag.messages["/eha/command"]) >= n_cmd + 1500   # read up to the kill, inside test 2
         # every window whose end mark made it into the log is there whole (test 2 too if its end
         # came before the kill); a window cut by the kill is not complete
-        wins = complete_windows(bag, resolve_topics(bag.types, first).get("eha/test_window"))
+        wins = complete_windows(window_marks(bag, resolve_topics(bag.types, first).get("eha/test_window")))
         assert 1 in wins
         stamps = np.array([cv.stamp_ns(m.header.stamp) for m in bag.messages["/eha/command"]])
         for tid, w in wins.items():

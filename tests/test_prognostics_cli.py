@@ -141,7 +141,7 @@ def test_a_duplicate_row_of_an_import_says_what_to_do(db, tmp_path, capsys):
         code, out, err = run(capsys, ["history", "import", str(f), "--history", str(db), *extra])
         assert code == 2 and out == "", (out, err)
         (line,) = err.splitlines()
-        assert line == "eha-health history: error: " + said.format(f=f.name), line
+        assert line == "eha-health history import: error: " + said.format(f=f.name), line
         assert rows_of(db) == before
 
 
@@ -311,7 +311,7 @@ def test_a_window_the_monitor_dropped_at_its_stop_is_not_added(tmp_path, capsys)
         code, out, err = run(capsys, ["history", "add", *argv, *common])
         assert code == 2 and out == "" and not db.exists(), (out, err)
         line, = err.splitlines()
-        assert line.startswith(f"eha-health history: error: {name}") and "cut off by the monitor's stop" in line, line
+        assert line.startswith(f"eha-health history add: error: {name}") and "cut off by the monitor's stop" in line, line
         assert why in line, line
     # without --test: the first window not cut off
     code, out, err = run(capsys, ["history", "add", str(bag), *common])

@@ -37,13 +37,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     args.raw = list(argv) if argv is not None else sys.argv[1:]
+    # the same prefix as argparse's own errors: "eha-health history repair: error: ..."
+    prog = " ".join(["eha-health", args.command, *(getattr(args, f"{args.command}_command", None) or "",)]).strip()
     try:
         return args.func(args)
     except (UsageError, ValueError, FileNotFoundError) as e:
-        print(f"eha-health {args.command}: error: {e}", file=sys.stderr)
+        print(f"{prog}: error: {e}", file=sys.stderr)
         return 2
     except sqlite3.Error as e:   # a history file that fails under us (read-only, disk full): one line too
-        print(f"eha-health {args.command}: error: history database: {' '.join(str(e).split())}", file=sys.stderr)
+        print(f"{prog}: error: history database: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
     except BrokenPipeError:
         # the reader stopped early (`history list | head`): nothing of ours failed, so no traceback;

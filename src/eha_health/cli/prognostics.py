@@ -220,20 +220,17 @@ def cmd_history_import(args) -> int:
     db = _db(args, False, settings)
     # both files read before the store is opened: a bad file creates no store
     maint = read_maintenance_csv(args.maintenance) if args.maintenance else None
-    try:
+    try:   # a row at a time its actuator has a test at already, in the file or in the store
         recs = read_history_csv(args.file)
+        _maintenance_beside(args.file, args.maintenance)
+        with HistoryStore(db, settings) as st:
+            notes = st.usage_notes(recs, maint) + (st.backfill_notes(recs) if args.backfill else [])
+            older = superseded_notes([(x["actuator_id"], x["time_h"], x["fault"]) for x in st.list_maintenance()],
+                                     maint or [])
+            n, m = st.import_files(args.file, args.maintenance, recs, maint, backfill=args.backfill)
+            total = st.count_tests()
     except DuplicateRow as e:
         raise UsageError(f"{e}; {_csv_duplicate_hint(e)}") from None
-    _maintenance_beside(args.file, args.maintenance)
-    with HistoryStore(db, settings) as st:
-        notes = st.usage_notes(recs, maint) + (st.backfill_notes(recs) if args.backfill else [])
-        older = superseded_notes([(x["actuator_id"], x["time_h"], x["fault"]) for x in st.list_maintenance()],
-                                 maint or [])
-        try:
-            n, m = st.import_files(args.file, args.maintenance, recs, maint, backfill=args.backfill)
-        except DuplicateRow as e:
-            raise UsageError(f"{e}; {_csv_duplicate_hint(e)}") from None
-        total = st.count_tests()
     for note in (notes if n else []) + (older if m else []):
         print(f"note: {note}", file=sys.stderr)
     extra = f" and {m} maintenance action(s) from {args.maintenance}" if args.maintenance else ""

@@ -223,13 +223,7 @@ def window_marks(bag: Bag, topic: str | None) -> dict[int, dict]:
     return dict(sorted(marks.items()))
 
 
-def complete_windows(bag: Bag, topic: str | None) -> dict[int, dict]:
-    """Test id -> {'start': ns, 'end': ns} of the windows with both marks on ``topic``
-    (:func:`window_marks`)."""
-    return _complete(window_marks(bag, topic))
-
-
-def _complete(marks: dict[int, dict]) -> dict[int, dict]:
+def complete_windows(marks: dict[int, dict]) -> dict[int, dict]:
     """The windows of :func:`window_marks` with both their marks."""
     return {tid: m for tid, m in marks.items() if "start" in m and "end" in m}
 
@@ -237,7 +231,7 @@ def _complete(marks: dict[int, dict]) -> dict[int, dict]:
 def window_ids(path: str | Path) -> list[int]:
     """Ids of the complete test windows of the bag at ``path`` (reads only its window marks)."""
     topic = resolve_topics(read_bag(path, topics=[]).types, path).get(C.TEST_WINDOW.name)
-    return list(complete_windows(read_bag(path, topics=[topic] if topic else []), topic))
+    return list(complete_windows(window_marks(read_bag(path, topics=[topic] if topic else []), topic)))
 
 
 def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence | None = None,
@@ -271,7 +265,7 @@ def read_run(path: str | Path, test_id: int | None = None, sequence: FDISequence
     chans = _channels(bag, names, record, done)
     topic = names.get(C.TEST_WINDOW.name)
     marks = window_marks(bag, topic)
-    wins = _complete(marks)
+    wins = complete_windows(marks)
     if marks and not wins:   # e.g. a recording stopped mid-test: a part of a test, not a whole record
         said = ", ".join(f"{tid} ({next(iter(m))} only)" for tid, m in marks.items())
         raise WindowError(f"{path}: no complete test window: the marks on {topic} are of test(s) {said}, none "

@@ -2,8 +2,9 @@
 
 One source of truth: every default lives in the YAML shipped with the package (read with
 ``physics.yamlfile.safe_load``: safe, and a key written twice is refused); the dataclasses carry
-the unit and a one-line doc of each field in its metadata. :func:`load_settings` reads the shipped file, optionally merged with a user
-YAML of the same structure (partial allowed) and a nested ``overrides`` dict.
+the unit and a one-line doc of each field in its metadata. :func:`load_settings` reads the shipped
+file, optionally merged with a user YAML of the same structure (partial allowed) and a nested
+``overrides`` dict.
 """
 from __future__ import annotations
 
@@ -140,7 +141,7 @@ class Settings:
 
     def models_for(self, fault: str) -> ModelSettings:
         """The degradation models of ``fault`` (gm, fsj, bkl): ``fault_models.<fault>`` over ``models``."""
-        return dict(self.fault_models).get(fault, self.models)
+        return next((m for f, m in self.fault_models if f == fault), self.models)
 
 
 # ----------------------------------------------------------------------------- YAML I/O

@@ -22,7 +22,7 @@ from msg_bridge import contract as C
 from msg_bridge.convert import NS
 
 from ..identification.diagnose import DEFAULT_METHOD
-from ..io.bagrun import complete_windows, resolve_topics, truth_values
+from ..io.bagrun import complete_windows, resolve_topics, truth_values, window_marks
 from ..io.mcaplog import BagError, read_bag
 from ..monitoring.health import results_summary
 from ..monitoring.prognosis import history_summary
@@ -141,7 +141,7 @@ def replay(bag: str | Path, rate: float = 1.0, with_monitor: bool = True, log_pa
         os.environ["ROS_DOMAIN_ID"] = str(domain_id)
     win_topic = resolve_topics(read_bag(bag, topics=[]).types, bag).get(C.TEST_WINDOW.name)
     marks = read_bag(bag, topics=[win_topic] if win_topic else [])   # the marks and the metadata
-    n_windows = len(complete_windows(marks, win_topic)) if with_monitor else 0
+    n_windows = len(complete_windows(window_marks(marks, win_topic))) if with_monitor else 0
     check_operating_hours(operating_hours, history if with_monitor else None, max(n_windows, 1))
     ctx = rclpy.Context()
     rclpy.init(context=ctx, signal_handler_options=SignalHandlerOptions.NO)
