@@ -73,6 +73,9 @@ def test_append_list_and_same_recording_twice(tmp_path):
     ([rec(t=10.0), rec(t=20.0, k=(0.1, 1.6, 0.1))], r"k_fsj=1.6 outside \[0, 1.5\]"),
     ([rec(t=10.0), rec(t=20.0, k=(-0.01, 0.1, 0.1))], "outside"),
     ([rec(t=1.0)], "times out of order"),     # before the latest stored test
+    # the stamp of a record made in Python is checked as a HISTORY.csv's is (it was not before 2026-12-07)
+    ([rec(t=10.0), rec(t=20.0, sim_time_s=float("nan"))], r"sim_time_s must be a time stamp \[s\] >= 0, got nan"),
+    ([rec(t=10.0, sim_time_s=-3.0)], r"sim_time_s must be a time stamp \[s\] >= 0, got -3.0"),
 ])
 def test_bad_batches_leave_the_store_unchanged(tmp_path, bad, message):
     db = tmp_path / "h.sqlite"

@@ -19,7 +19,6 @@ written with ``repr`` (the shortest text that reads back to the same float).
 from __future__ import annotations
 
 import csv
-import math
 import os
 import tempfile
 from pathlib import Path
@@ -113,8 +112,6 @@ def read_history_csv(path: str | Path) -> list[HealthRecord]:
                     else None for n in FAULT_KEYS)
         usage = _float(row["usage"], where, "usage") if row.get("usage") not in (None, "") else None
         stamp = _float(row["sim_time_s"], where, "sim_time_s") if row.get("sim_time_s") not in (None, "") else None
-        if stamp is not None and not (math.isfinite(stamp) and stamp >= 0):
-            raise PrognosticsError(f"{where}: sim_time_s must be a time stamp [s] >= 0, got {stamp!r}")
         r = HealthRecord(row["actuator_id"] or "", _float(row["time_h"], where, "time_h"), k, std,
                          usage=usage, usage_unit=row.get("usage_unit") or None, sim_time_s=stamp, method="import")
         check_record(r, where)

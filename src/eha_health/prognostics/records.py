@@ -111,6 +111,10 @@ def check_record(r: HealthRecord, where: str) -> None:
             raise PrognosticsError(f"{where}: std_{name}={v!r} is negative")
     if r.usage is not None and (not math.isfinite(r.usage) or not 0 <= r.usage <= MAX_USAGE):
         raise PrognosticsError(f"{where}: usage must be a number in [0, {MAX_USAGE:g}], got {r.usage!r}")
+    # the stamp tells a monitor's live test from another at the same time_h (store.holds_test)
+    if r.sim_time_s is not None and not (isinstance(r.sim_time_s, (int, float)) and math.isfinite(r.sim_time_s)
+                                         and r.sim_time_s >= 0):
+        raise PrognosticsError(f"{where}: sim_time_s must be a time stamp [s] >= 0, got {r.sim_time_s!r}")
 
 
 # ----------------------------------------------------------------------------- in-memory history
