@@ -570,6 +570,42 @@ def test_the_fleet_prior_holds_what_its_members_do_not_know():
     assert one.members == 1 and one.sd_log == pytest.approx(0.2) and one.lives == (("a", 1000.0, 0.2),)
 
 
+def test_the_fleet_prior_says_nothing_of_lives_shorter_than_its_members_had_to_last():
+    """Members qualify with fleet.min_points points since onset: with tests 300 h apart, only units
+    that lasted 900 h did, 35 of 40 waited, and the prior (lives 1400-1800 h) moved a young unit's
+    short lives 2x late (an independent probe, 2026-12-07: 14 of 65 failed before their 5 %
+    quantile). In the share of the wearing fleet still waiting to qualify, a life shorter than the
+    members' entry age keeps the weight of the unit's own data, and the prior shares out the rest;
+    with none waiting (every wearing unit a member) the prior weighs every life as before."""
+    from eha_health.prognostics.degradation import Series
+    from eha_health.prognostics.rul import FaultPrediction, apply_fleet_prior, fleet_prior
+    s = load_settings()
+    rng = np.random.default_rng(0)
+    own = rng.lognormal(math.log(400.0), 0.5, 4000)         # RUL [h] from tau_now = 600 h
+    members = {f"M{i}": (L, 0.05, 900.0) for i, L in enumerate((1400.0, 1500.0, 1600.0, 1800.0))}
+    short = (600.0 + own < 900.0).mean()                     # the unit's own P(failing before 900 h)
+
+    def applied(lives, actuator=None):
+        p = FaultPrediction(own.copy(), None, n_points=3, series=Series(np.array([0.0, 300.0, 600.0]),
+                                                                      np.zeros(3), np.ones(3), 600.0))
+        apply_fleet_prior(p, fleet_prior(lives, 3), s, actuator)
+        assert p.fleet_prior, p.reason
+        return p
+    nan3 = (math.nan,) * 3
+    waiting = {f"W{i}": nan3 for i in range(4)}
+    prior = fleet_prior({**members, **waiting, "Y": nan3}, 3)
+    assert prior.entry_h == 900.0 and prior.members == 4 and prior.unseen == pytest.approx(5 / 9)
+    assert prior.excluding("Y").unseen == pytest.approx(0.5)     # the unit itself is not the fleet
+    half = applied({**members, **waiting, "Y": nan3}, "Y")
+    assert half.p_fail(300.0) == pytest.approx(0.5 * short, rel=0.02)
+    assert half.quantiles()[1] > 1.5 * np.median(own)           # beyond 900 h the prior weighs still
+    # 36 of 40 waiting: nearly the unit's own share of short lives
+    most = applied({**members, **{f"W{i}": nan3 for i in range(36)}})
+    assert most.p_fail(300.0) == pytest.approx(0.9 * short, rel=0.02)
+    # every wearing unit a member: the prior weighs the short lives too (none are left)
+    assert applied(members).p_fail(300.0) < 0.01 * short
+
+
 def test_a_rise_no_single_test_shows_is_seen_by_the_tests_together(tmp_path):
     # errors of 0.03: flat at 0.03 for 6 tests, then 5 tests up 0.09-0.11. No test clears the
     # first by 3 sd (0.127), so the per-test rule finds no onset; the 5 together are a rise of

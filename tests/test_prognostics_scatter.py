@@ -283,3 +283,56 @@ def test_the_short_median_is_numpys_to_the_bit():
             rows = rng.choice(vals, (3, n)) if trial % 3 else sliding_window_view(rng.choice(vals, n + 3), n)
             a, b = np.median(rows, axis=1), _median(rows, axis=1)
             assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), rows
+
+
+def test_a_failed_last_diagnosis_neither_hides_the_trend_nor_is_counted_from_the_test_before(tmp_path):
+    """gm rises linearly from 0.02 to 0.70 over 0-950 h (a test every 50 h); the trend reaches
+    the threshold 0.8 at about 1090 h. A last test at 1000 h off the trend is a failed diagnosis
+    or wear that jumped: an even mixture. An independent probe (2026-12-07) found that a last
+    reading near the first tests' (0.0) gave no RUL at all, that the future without the last test
+    was counted from the test before it (950 h: its 5 % quantile 135 h after 1000 h instead of
+    about 90 h), and that the good test at 900 h was set aside beside the failed one."""
+    rng = np.random.default_rng(5)
+    t = np.arange(0, 1000, 50.0)
+    k = 0.02 + 0.68 * t / 950 + rng.normal(0, 0.005, len(t))
+    true_rul = (0.8 - 0.02) * 950 / 0.68 - 1000.0        # from the last test, on the mean path [h]
+    for last_t, last_k in ((1000.0, 0.0), (1000.0, 0.6)):
+        p = tmp_path / f"last_{last_k}.csv"
+        _write(p, np.r_[t, last_t], np.r_[k, last_k], std=0.005)
+        got = prognose(p, thresholds=THR, next_check_h=50.0)["actuators"]["A"]["faults"]["gm"]
+        assert got["last_test_off_trend"] is True, (last_k, got)
+        assert not got.get("outliers_h"), (last_k, got)
+        # the future without it fails about true_rul after 1000 h; the other half after that or never
+        assert got["rul_p05_h"] is not None and 0.8 * true_rul < got["rul_p05_h"] < true_rul, (last_k, got)
+    # a last test 250 h on, off the trend: the tests before it put the threshold before it, so
+    # the future without it has failed already (RUL 0): half the futures
+    p = tmp_path / "late.csv"
+    _write(p, np.r_[t, 1200.0], np.r_[k, 0.35], std=0.005)
+    got = prognose(p, thresholds=THR, next_check_h=50.0)["actuators"]["A"]["faults"]["gm"]
+    assert got["last_test_off_trend"] is True and got["rul_p05_h"] == 0.0 and got["p_fail_next"] >= 0.45, got
+
+
+def test_the_test_that_found_the_wear_recorded_at_the_repair_time_is_not_the_new_units_baseline(tmp_path, capsys):
+    """A replacement recorded at the time of the test that found the wear (the trend restarts at or
+    after a repair, so that test opens the new unit's trend): its high K was the new unit's baseline,
+    and the new unit's wear (0.02 -> 0.11 over 4 tests) read as no degradation (an independent
+    probe, 2026-12-07). It is set aside and named, and the RUL is the one of the repair recorded
+    after it; `history repair` at a test's time says how that test counts."""
+    from eha_health.cli import main
+    t = np.arange(0, 1150, 50.0)
+    k = np.where(t <= 900, 0.02 + 0.78 * t / 950, 0.02 + 0.0006 * (t - 950))
+    hist = tmp_path / "h.csv"
+    _write(hist, t, k)
+    rul = {}
+    for when in (900.0, 925.0):
+        db = tmp_path / f"h{when:g}.sqlite"
+        assert main(["history", "import", str(hist), "--history", str(db)]) == 0
+        assert main(["history", "repair", "--actuator", "A", "--fault", "all", "--time-h", str(when),
+                     "--action", "replace", "--history", str(db)]) == 0
+        err = capsys.readouterr().err
+        assert ("test at 900 h counts as after the replace" in err) == (when == 900.0), err
+        got = prognose(db, thresholds=THR)["actuators"]["A"]["faults"]["gm"]
+        assert got["rul_median_h"] is not None, got
+        assert got.get("outliers_h") == ([900.0] if when == 900.0 else None), got
+        rul[when] = got["rul_median_h"]
+    assert rul[900.0] == rul[925.0]

@@ -370,7 +370,7 @@ class UnitScore:
 
 def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float],
                          progress: Callable[[str], None] | None = None) -> list[UnitScore]:
-    from ..prognostics.rul import (FaultPrediction, apply_fleet_prior, fleet_prior, life_estimate, overall,
+    from ..prognostics.rul import (FaultPrediction, apply_fleet_prior, fleet_prior, member_lives, overall,
                                    prepare_fault, predict_series, shared_wear, weighted_quantiles)
     from ..prognostics.metrics import naive_rul
     b = s.bench
@@ -387,8 +387,7 @@ def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float],
             p, _ = prepare_fault(u.test_h, u.diag_k[:, fi], u.diag_std[:, fi], thr[f], len(u.test_h), s)
             full.append(p)
         predict_series(full, np.full(len(full), thr[f]), fi, s)
-        lives = [life_estimate(p) if p.series is not None and p.n_points >= s.fleet.min_points
-                 else (np.nan, np.nan) for p in full]
+        members = member_lives([u.actuator_id for u in units], full, s)
         plist = []
         for ui, k in points:
             u = units[ui]
@@ -397,7 +396,7 @@ def _predict_unit_points(units: list[Unit], s: Settings, thr: dict[str, float],
             plist.append(p)
         predict_series(plist, np.full(len(plist), thr[f]), fi, s)
         # each unit takes the prior of the others (apply_fleet_prior leaves its own life out)
-        prior = fleet_prior({u.actuator_id: lv for u, lv in zip(units, lives)}, s.fleet.min_members)
+        prior = fleet_prior(members, s.fleet.min_members)
         for (ui, k), p in zip(points, plist):
             apply_fleet_prior(p, prior, s, units[ui].actuator_id)
     scores = []

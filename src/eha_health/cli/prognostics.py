@@ -303,6 +303,7 @@ def cmd_history_repair(args) -> int:
     with HistoryStore(db, settings) as st:
         st.record_repair(args.actuator, args.fault, args.time_h, action=args.action, note=args.note)
         log = [(m["time_h"], m["fault"]) for m in st.list_maintenance(args.actuator)]
+        at_test = any(t["time_h"] == args.time_h for t in st.list_tests(args.actuator))
     # a back-filled log: where a later maintenance covers the fault, its trend restarts there
     later = {f: trend_start_h(log, f) for f in (FAULT_KEYS if args.fault == "all" else (args.fault,))}
     here = [f for f, t in later.items() if t <= args.time_h]
@@ -310,6 +311,11 @@ def cmd_history_repair(args) -> int:
     said = ("its trend restarts there" if not later else
             f"the trend of {', '.join(here)} restarts there" if here else "kept in the log only")
     print(f"recorded: {args.action} of {args.fault} on {args.actuator} at {args.time_h:g} h ({said}) -> {db}")
+    if at_test and not later:
+        # the usual slip: the time of the test that found the wear; a return-to-service test is as likely
+        print(f"note: the test at {args.time_h:g} h counts as after the {args.action} (the trend restarts at or "
+              f"after it); if it is the test that found the wear, a K above the tests after it is set aside "
+              f"when prognosed, and named", file=sys.stderr)
     if later:
         print("note: a later maintenance is recorded, where the trend restarts instead: "
               + ", ".join(f"{f} at {t:g} h" for f, t in later.items()), file=sys.stderr)

@@ -59,6 +59,7 @@ from numba import njit
 from .config import PrognosticsError, Settings, load_settings
 from .degradation import (ModelFit, Series, akaike_weights, degradation_segment, fit_models, rise_onset,
                           shape_g, shape_g_inv)
+from .prior_cache import FleetPriorCache
 from .scatter import isolated_outliers, last_persistent_fall, noise_estimate
 from .records import trend_start_h
 from .thresholds import FAULTS, threshold_values
@@ -309,8 +310,16 @@ class FleetPrior:
     mu_log: float
     sd_log: float
     members: int
-    lives: tuple = ()          # (actuator, life [h], its sd of log life) of the members
+    lives: tuple = ()          # (actuator, life [h], its sd of log life[, entry age h]) of the members
     min_members: int = 0
+    entry_h: float = 0.0       # median age since onset [h] at which the members qualified (fleet.min_points)
+    waiting: tuple = ()        # actuators whose fault wears but that have not qualified (yet)
+
+    @property
+    def unseen(self) -> float:
+        """Share of the wearing actuators that are not members: the fleet the members' lives, each
+        one that lasted ``entry_h``, may not stand for (0: every one qualified)."""
+        return len(self.waiting) / (len(self.waiting) + self.members)
 
     def logpdf(self, life_h: np.ndarray) -> np.ndarray:
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -320,9 +329,10 @@ class FleetPrior:
     def excluding(self, actuator: str) -> "FleetPrior | None":
         """The prior of the other members, for ``actuator`` (its own data must not count twice:
         once as a member, once as the data the prior weighs)."""
-        if not any(m[0] == actuator for m in self.lives):
+        if not any(m[0] == actuator for m in self.lives) and actuator not in self.waiting:
             return self
-        return fleet_prior({m[0]: m[1:] for m in self.lives if m[0] != actuator}, self.min_members)
+        return fleet_prior({**{m[0]: m[1:] for m in self.lives if m[0] != actuator},
+                            **{a: (math.nan,) for a in self.waiting if a != actuator}}, self.min_members)
 
 
 def fleet_prior(lives: dict[str, tuple[float, float]], min_members: int) -> FleetPrior | None:
@@ -333,16 +343,23 @@ def fleet_prior(lives: dict[str, tuple[float, float]], min_members: int) -> Flee
     to the mixture of the members' lognormals: mu = mean(log L_j), sd^2 = var(log L_j) +
     mean(s_j^2), so members that know little of their own life make it wide instead of pulling
     every receiver to their (possibly biased) medians. Lives not finite or not > 0 are left out
-    (an sd not finite counts as 0).
+    (an sd not finite counts as 0); they are the actuators whose fault wears but that have not
+    qualified (``waiting``). A third value per member, its age since onset [h] when it qualified
+    (:func:`life_estimate`), gives ``entry_h``, their median: the members had to last that long,
+    and the more of the wearing fleet waits, the less they tell of lives shorter than it
+    (:func:`apply_fleet_prior`).
     """
-    ok = [(a, float(life), float(sd)) for a, (life, sd) in lives.items() if np.isfinite(life) and life > 0]
+    ok = [(a, *map(float, v)) for a, v in lives.items() if np.isfinite(v[0]) and v[0] > 0]
     if len(ok) < min_members:
         return None
+    waiting = tuple(a for a, v in lives.items() if not (np.isfinite(v[0]) and v[0] > 0))
+    entries = [m[3] for m in ok if len(m) > 3 and np.isfinite(m[3])]
     lx = np.log([m[1] for m in ok])
     within = np.array([m[2] if np.isfinite(m[2]) else 0.0 for m in ok])
     between = float(lx.var(ddof=1)) if len(lx) > 1 else 0.0     # one member (min_members 1): its own spread
     sd = math.sqrt(between + float(np.mean(within ** 2)))
-    return FleetPrior(float(lx.mean()), max(sd, 0.05), len(ok), tuple(ok), min_members)
+    return FleetPrior(float(lx.mean()), max(sd, 0.05), len(ok), tuple(ok), min_members,
+                      float(np.median(entries)) if entries else 0.0, waiting)
 
 
 def prior_weights(samples_h: np.ndarray, tau_now_h: np.ndarray, prior: FleetPrior) -> np.ndarray:
@@ -371,7 +388,8 @@ class FaultPrediction:
     outliers_h: list = field(default_factory=list)   # tests set aside (scatter.isolated_outliers) [h]
     no_trend: bool = False                            # no degradation since the repair: no failure ahead
     last_off_trend: bool = False                      # the last test is off the trend (unconfirmed) ...
-    without_last: "FaultPrediction | None" = None     # ... and the prediction without it
+    without_last: "FaultPrediction | None" = None     # ... and the prediction without it ...
+    last_gap_h: float = 0.0                           # ... whose RULs count from the test before [h]
     mixed_without: np.ndarray | None = None           # samples drawn from without_last (the even mixture)
     reason: str | None = None
     series: Series | None = None          # since the onset anchor (n_points, fleet life)
@@ -599,16 +617,29 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
         p.unrecorded_repair_h = float(time_h[fall])
         time_h, k, std = time_h[fall:], k[fall:], std[fall:]
         n_tests = p.n_tests = len(k)
+    first_off = _first_above_the_rest(k, std, s)
+    if first_off:
+        # wear does not heal: the test that found the wear, recorded at the repair's time (the
+        # trend restarts at or after it), or a failed diagnosis. Kept, it was the new unit's
+        # baseline and hid its wear (an independent probe); set aside and named
+        p.outliers_h = [float(time_h[0])]
+        time_h, k, std = time_h[1:], k[1:], std[1:]
+        n_tests = len(k)
     if n_tests < s.prognosis.min_tests:
         p.reason = f"only {n_tests} test(s) {since} (fewer than {s.prognosis.min_tests}): no RUL"
         return p, None
     off, last = isolated_outliers(time_h, k, std, s.prognosis.outlier_sigma, s.prognosis.outlier_min_jump)
     if last and check_last:
         p.last_off_trend = True
+        p.last_gap_h = float(time_h[-1] - time_h[-2])
         p.without_last = prepare_fault(time_h[:-1], k[:-1], std[:-1], threshold, n_tests - 1, s, False, repaired)[0]
+        # the tests before it are judged among themselves: beside a failed last diagnosis, the
+        # good test before it lay off the line through it and was set aside (an independent probe)
+        off = np.r_[isolated_outliers(time_h[:-1], k[:-1], std[:-1], s.prognosis.outlier_sigma,
+                                      s.prognosis.outlier_min_jump)[0], False]
     if off.any():
         # a failed or disturbed diagnosis: set aside, named in the output
-        p.outliers_h = [float(t) for t in time_h[off]]
+        p.outliers_h += [float(t) for t in time_h[off]]
         time_h, k, std = time_h[~off], k[~off], std[~off]
     # a rise only the last test shows is judged as a test off its neighbours is (outlier_sigma)
     last_sigma = max(s.prognosis.onset_sigma, s.prognosis.outlier_sigma)
@@ -664,6 +695,15 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
     return p, ser
 
 
+def _first_above_the_rest(k: np.ndarray, std: np.ndarray, s: Settings, after: int = 3) -> bool:
+    """Whether the first test lies above each of the ``after`` tests after it by a repair's fall:
+    ``prognosis.repair_fall`` [K] and ``outlier_sigma`` times their stated sd (0: never)."""
+    if s.prognosis.outlier_sigma <= 0 or len(k) < after + 1:
+        return False
+    need = max(s.prognosis.outlier_sigma * float(np.median(std[:after + 1])), s.prognosis.repair_fall)
+    return bool(np.all(k[0] - k[1:after + 1] > need))
+
+
 def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_index: int, s: Settings) -> None:
     """Fit and sample every prepared series of one fault (in place).
 
@@ -678,17 +718,36 @@ def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_i
     u_last = Draws.make(s.prognosis.seed, fault_index, s.prognosis.samples).u_last
     for i, a in alts:
         p = preds[i]
-        without = a.samples
+        without, raw_without = _from_last_test(a, p.last_gap_h)
         if without is None and a.no_trend and p.samples is not None:
             without = np.full(len(p.samples), np.inf)     # without the last test, no wear: no failure ahead
+        if p.samples is None and p.no_trend and without is not None:
+            # the reverse: the last test says no wear (a reading near the first tests'), the tests
+            # before it a trend. Taken at its word it hid the trend whole: no RUL, P(fail) 0 on a
+            # unit near its threshold (an independent probe). The fit is the one without it; the
+            # future with it has no failure ahead.
+            p = preds[i] = dataclasses.replace(
+                a, n_tests=p.n_tests, k_last=p.k_last, std_last=p.std_last, last_off_trend=True,
+                last_gap_h=p.last_gap_h, without_last=a, samples=np.full(len(without), np.inf),
+                raw_samples=None if raw_without is None else np.full(len(without), np.inf),
+                horizon_h=a.horizon_h - p.last_gap_h)
         if p.samples is not None and without is not None and len(p.samples) == len(without) == len(u_last):
             # an even mixture: with the last test (wear jumped) or without it (a failed diagnosis)
             p.mixed_without = u_last < 0.5
             p.samples = np.where(p.mixed_without, without, p.samples)
-            p.horizon_h = min(p.horizon_h, a.horizon_h)
+            p.horizon_h = min(p.horizon_h, a.horizon_h - p.last_gap_h)
             if p.raw_samples is not None:
-                p.raw_samples = np.where(p.mixed_without, without if a.raw_samples is None else a.raw_samples,
+                p.raw_samples = np.where(p.mixed_without, without if raw_without is None else raw_without,
                                          p.raw_samples)
+
+
+def _from_last_test(a: FaultPrediction, gap_h: float) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """RUL samples (and raw samples) of the prediction without the last test, counted from the
+    last test instead of the one before it: R - gap [h], at least 0 (a failure the tests before
+    it put between the two is one that may have happened; the probe found them counted from the
+    earlier test, up to 108 h past a failure the trend put before the last test)."""
+    shift = (lambda x: None if x is None else np.maximum(x - gap_h, 0.0))
+    return shift(a.samples), shift(a.raw_samples)
 
 
 def _predict_prepared(preds: list[FaultPrediction], thresholds: np.ndarray, fault_index: int, s: Settings) -> None:
@@ -766,6 +825,24 @@ def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings,
         for half in (p.mixed_without, ~p.mixed_without):
             tot = w[half].sum()
             w[half] = w[half] * (half.sum() / tot) if tot > 0 else 1.0
+    # the members qualified by lasting prior.entry_h since onset: of the lives shorter than that
+    # they tell nothing the actuators still waiting to qualify could not belie. In the share of the
+    # wearing fleet that waits (``unseen``), a life shorter keeps the weight of the unit's own data
+    # and the prior shares out the rest. (Tests 300 h apart made members of the long lives alone, 35
+    # of 40 units waiting, and the prior moved the short ones 2x late: 14 of 65 failed before their
+    # 5 % quantile; an independent probe, 2026-12-07.)
+    short = tau + base < prior.entry_h
+    lam = prior.unseen if prior.waiting else 0.0
+    if lam > 0 and short.any():
+        own = w.copy()
+        for half in ([np.ones(len(w), bool)] if p.mixed_without is None else [p.mixed_without, ~p.mixed_without]):
+            own[half & short] = 1.0
+            rest = half & ~short
+            tot = own[rest].sum()
+            own[rest] = own[rest] * (rest.sum() / tot) if tot > 0 else 1.0
+            tot = w[half].sum()
+            w[half] = w[half] * (half.sum() / tot) if tot > 0 else 1.0
+        w = (1.0 - lam) * w + lam * own
     ess = w.sum() ** 2 / max(np.sum(w * w), 1e-300) if w.sum() > 0 else 0.0
     if ess >= 50:
         # the horizon reaches the prior's 99.9 % life (beyond it, samples count as later)
@@ -776,17 +853,19 @@ def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings,
         p.reason = f"fleet prior not applied: it conflicts with the data (effective samples {ess:.0f})"
 
 
-def life_estimate(p: FaultPrediction) -> tuple[float, float]:
-    """(life [h], sd of its log) that a fleet member contributes: L = tau_now + median RUL, and
-    (log L - log(tau_now + p05 RUL)) / 1.645 (the lower side: the upper may lie beyond the horizon)."""
+def life_estimate(p: FaultPrediction, min_points: int = 1) -> tuple[float, float, float]:
+    """(life [h], sd of its log, entry age [h]) that a fleet member contributes: L = tau_now + median
+    RUL; (log L - log(tau_now + p05 RUL)) / 1.645 (the lower side: the upper may lie beyond the
+    horizon); and tau at its ``min_points``-th point since onset, the age it had to reach to count."""
     if p.samples is None or p.series is None:
-        return math.nan, math.nan
+        return math.nan, math.nan, math.nan
     p05, med = weighted_quantiles(p.samples, p.weights, (0.05, 0.5))
     tau = float(p.series.tau_h[-1])
     if not np.isfinite(med) or tau + med <= 0:
-        return math.nan, math.nan
+        return math.nan, math.nan, math.nan
     lo = tau + p05
-    return float(tau + med), (float(math.log((tau + med) / lo) / 1.645) if lo > 0 else math.nan)
+    entry = float(p.series.tau_h[min(max(min_points, 1), len(p.series.tau_h)) - 1])
+    return float(tau + med), (float(math.log((tau + med) / lo) / 1.645) if lo > 0 else math.nan), entry
 
 
 # ----------------------------------------------------------------------------- prognose
@@ -840,11 +919,12 @@ def _predict_faults(hist, ids: list[str], thr: dict[str, float], s: Settings) ->
         return {f: [p for fut in fs for p in fut.result()] for f, fs in futs.items()}
 
 
-def member_lives(ids: list[str], plist: list[FaultPrediction], s: Settings) -> dict[str, tuple[float, float]]:
-    """(life [h], sd of its log) of each actuator of ``ids`` that is a member of the fleet prior:
-    those with at least ``fleet.min_points`` points since onset (:func:`life_estimate`)."""
-    return {a: life_estimate(p) for a, p in zip(ids, plist)
-            if p.series is not None and p.n_points >= s.fleet.min_points}
+def member_lives(ids: list[str], plist: list[FaultPrediction], s: Settings) -> dict[str, tuple[float, float, float]]:
+    """(life [h], sd of its log, entry age [h]) of each actuator of ``ids`` whose fault wears: of a
+    member of the fleet prior, with at least ``fleet.min_points`` points since onset
+    (:func:`life_estimate`); NaN of one still waiting to qualify."""
+    return {a: life_estimate(p, s.fleet.min_points) if p.n_points >= s.fleet.min_points else (math.nan,) * 3
+            for a, p in zip(ids, plist) if p.series is not None}
 
 
 def _prior_of(ids: list[str], plist: list[FaultPrediction], s: Settings) -> FleetPrior | None:
@@ -861,7 +941,6 @@ def fleet_priors(history, settings: Settings | None = None,
     :class:`prior_cache.FleetPriorCache`, which refits only the actuators that changed, and
     passes its priors as ``prognose(..., priors=)``.
     """
-    from .prior_cache import FleetPriorCache
     return FleetPriorCache(settings, thresholds).priors(history)
 
 
@@ -911,13 +990,12 @@ def prognose(history, actuator: str | None = None, next_check_h: float | None = 
             raise PrognosticsError(first if len(refused) == 1 else
                                    f"none of the {len(refused)} actuators can be put on the usage clock; {first}")
     plists = _predict_faults(hist, ids, thr, s)
-    if priors is None or hasattr(priors, "on_clock"):
+    if priors is None or isinstance(priors, FleetPriorCache):
         # fleet prior from the members (enough points), applied to the actuators with few points;
         # one actuator's needs the whole fleet fitted, and only when a fault of it takes the prior
         if actuator is None and priors is None:
             priors = {f: _prior_of(ids, plists[f], s) for f in FAULTS}
         elif actuator is None or any(takes_prior(p, s) for pl in plists.values() for p in pl):
-            from .prior_cache import FleetPriorCache
             priors = (priors or FleetPriorCache(s, thr)).on_clock(hist)
         else:
             priors = {}
