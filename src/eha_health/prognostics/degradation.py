@@ -209,61 +209,60 @@ def _filter_cells(st, g, gi, y, r, mask, eta2, sig2, q, start):  # pragma: no co
     every fit and the online tracker run; kf_step is the readable reference the tests hold it to): the same
     arithmetic in the same order, a scalar loop per cell instead of numpy temporaries per step
     (the temporaries were 2/3 of a 1000-actuator prognosis). st [NROW, S, C], g [S, U, N]: cell c's
-    time scale is g[:, gi[c], :] (the grid's cells share a few shapes)."""
+    time scale is g[:, gi[c], :] (the grid's cells share a few shapes). The state is held in named
+    scalars (pij: P[i, j], i <= j), not a 4x4 array kept symmetric: a quarter less time, the
+    stores of both triangles gone."""
     n_s, n_k, n_c = g.shape[0], g.shape[2], len(gi)
-    P = np.empty((4, 4))
-    x = np.empty(4)
-    ph = np.empty(4)
     for i_s in range(n_s):
         for c in range(n_c):
-            for i in range(4):
-                x[i] = st[i, i_s, c]
-            col = 4
-            for i in range(4):
-                for j in range(i, 4):
-                    P[i, j] = st[col, i_s, c]
-                    P[j, i] = P[i, j]
-                    col += 1
+            x0, x1, x2, x3 = st[0, i_s, c], st[1, i_s, c], st[2, i_s, c], st[3, i_s, c]
+            p00, p01, p02, p03 = st[4, i_s, c], st[5, i_s, c], st[6, i_s, c], st[7, i_s, c]
+            p11, p12, p13 = st[8, i_s, c], st[9, i_s, c], st[10, i_s, c]
+            p22, p23, p33 = st[11, i_s, c], st[12, i_s, c], st[13, i_s, c]
             ll = st[14, i_s, c]
+            u = gi[c]
             for k in range(start, n_k):
                 act = mask[i_s, k]
-                gk = g[i_s, gi[c], k]
-                dg = max(gk - g[i_s, gi[c], k - 1], 0.0)
+                gk = g[i_s, u, k]
+                dg = max(gk - g[i_s, u, k - 1], 0.0)
                 yk = y[i_s, k] if act else 0.0
                 rk = r[i_s, k] + eta2[c] if act else 1e300
                 # predict: F = I + dg e_u e_v', Q = diag(0, 0, sigma2 dg, q dg)
-                x[2] += dg * x[3]
-                p22 = P[2, 2] + 2 * dg * P[2, 3] + dg * dg * P[3, 3] + sig2[c] * dg
-                p20 = P[2, 0] + dg * P[3, 0]
-                p21 = P[2, 1] + dg * P[3, 1]
-                p23 = P[2, 3] + dg * P[3, 3]
-                P[2, 2] = p22
-                P[0, 2] = P[2, 0] = p20
-                P[1, 2] = P[2, 1] = p21
-                P[2, 3] = P[3, 2] = p23
-                P[3, 3] += q[c] * dg
-                # update with h = (1, g, 1, 0)
-                for i in range(4):
-                    ph[i] = P[i, 0] + gk * P[i, 1] + P[i, 2]
-                F = ph[0] + gk * ph[1] + ph[2] + rk
+                x2 += dg * x3
+                p22 = p22 + 2 * dg * p23 + dg * dg * p33 + sig2[c] * dg
+                p02 = p02 + dg * p03
+                p12 = p12 + dg * p13
+                p23 = p23 + dg * p33
+                p33 += q[c] * dg
+                # update with h = (1, g, 1, 0): ph = P h
+                h0 = p00 + gk * p01 + p02
+                h1 = p01 + gk * p11 + p12
+                h2 = p02 + gk * p12 + p22
+                h3 = p03 + gk * p13 + p23
+                F = h0 + gk * h1 + h2 + rk
                 inv = 1.0 / F
-                v = yk - (x[0] + x[1] * gk + x[2])
+                v = yk - (x0 + x1 * gk + x2)
                 kv = v * inv
-                for i in range(4):
-                    x[i] += ph[i] * kv
-                for i in range(4):
-                    for j in range(i, 4):
-                        P[i, j] -= ph[i] * (ph[j] * inv)
-                        P[j, i] = P[i, j]
+                x0 += h0 * kv
+                x1 += h1 * kv
+                x2 += h2 * kv
+                x3 += h3 * kv
+                p00 -= h0 * (h0 * inv)
+                p01 -= h0 * (h1 * inv)
+                p02 -= h0 * (h2 * inv)
+                p03 -= h0 * (h3 * inv)
+                p11 -= h1 * (h1 * inv)
+                p12 -= h1 * (h2 * inv)
+                p13 -= h1 * (h3 * inv)
+                p22 -= h2 * (h2 * inv)
+                p23 -= h2 * (h3 * inv)
+                p33 -= h3 * (h3 * inv)
                 if act:
                     ll -= 0.5 * (np.log(2 * math.pi * F) + v * kv)
-            for i in range(4):
-                st[i, i_s, c] = x[i]
-            col = 4
-            for i in range(4):
-                for j in range(i, 4):
-                    st[col, i_s, c] = P[i, j]
-                    col += 1
+            st[0, i_s, c], st[1, i_s, c], st[2, i_s, c], st[3, i_s, c] = x0, x1, x2, x3
+            st[4, i_s, c], st[5, i_s, c], st[6, i_s, c], st[7, i_s, c] = p00, p01, p02, p03
+            st[8, i_s, c], st[9, i_s, c], st[10, i_s, c] = p11, p12, p13
+            st[11, i_s, c], st[12, i_s, c], st[13, i_s, c] = p22, p23, p33
             st[14, i_s, c] = ll
 
 
