@@ -837,3 +837,20 @@ def test_prognose_on_threads_equals_the_serial_result(tmp_path, monkeypatch):
             q = out[2][1][a][f]
             for x, y in ((p.samples, q.samples), (p.weights, q.weights)):
                 assert (x is None and y is None) or np.array_equal(x, y, equal_nan=True), (a, f)
+
+
+def test_a_pick_at_some_entries_is_the_pick_of_all():
+    """rul._pick_at (a model's samples search their cells only) against rul._pick of every
+    entry: ties, weights of zero, a last cumulative weight forced to 1, and NaN (the fallback)."""
+    from eha_health.prognostics.rul import _pick, _pick_at
+    rng = np.random.default_rng(0)
+    for trial in range(300):
+        s, k, m = int(rng.integers(1, 9)), int(rng.integers(1, 50)), int(rng.integers(1, 200))
+        w = rng.choice([0.0, 0.5, 1.0, rng.random()], (s, k)) if trial % 2 else rng.random((s, k))
+        cum = np.cumsum(w / np.maximum(w.sum(1, keepdims=True), 1e-300), 1)
+        cum[:, -1] = 1.0
+        if trial % 7 == 0:
+            cum[rng.integers(s), rng.integers(k)] = np.nan
+        u = rng.random(m) if trial % 3 else rng.choice(cum.ravel()[np.isfinite(cum.ravel())], m)
+        rows, cols = np.nonzero(rng.random((s, m)) < 0.3)
+        assert np.array_equal(_pick_at(cum, u, rows, cols), _pick(cum, u)[rows, cols])

@@ -216,24 +216,59 @@ def _pick(cum: np.ndarray, u: np.ndarray) -> np.ndarray:
 def _pick_rows(cum, u, out):  # pragma: no cover - compiled
     """:func:`_pick` row by row into ``out``, the same floats compared; False (out unset) where
     a value of ``cum`` lies outside [0, 1.5]."""
+    if not _normalised(cum):
+        return False
+    for r in range(cum.shape[0]):
+        for j in range(len(u)):
+            out[r, j] = _search(cum, r, u[j])
+    return True
+
+
+def _pick_at(cum: np.ndarray, u: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``_pick(cum, u)[rows, cols]``, searching those entries only (a model's samples need their
+    own cells only: a quarter of the searches on four models)."""
+    out = np.empty(len(rows), np.int64)
+    if _pick_rows_at(np.ascontiguousarray(cum, float), np.ascontiguousarray(u, float), rows, cols, out):
+        return out
+    return _pick(cum, u)[rows, cols]
+
+
+@njit(cache=True, nogil=True)
+def _pick_rows_at(cum, u, rows, cols, out):  # pragma: no cover - compiled
+    """:func:`_pick_rows` at the entries (rows[e], cols[e]) into ``out[e]``."""
+    if not _normalised(cum):
+        return False
+    for e in range(len(rows)):
+        out[e] = _search(cum, rows[e], u[cols[e]])
+    return True
+
+
+@njit(cache=True, nogil=True)
+def _normalised(cum):  # pragma: no cover - compiled
+    """Whether every value of ``cum`` lies in [0, 1.5] (:func:`_pick`)."""
     s, k = cum.shape
     for r in range(s):
         for j in range(k):
             if not (0.0 <= cum[r, j] <= 1.5):
                 return False
-    for r in range(s):
-        off = 2.0 * r
-        for j in range(len(u)):
-            q = (u[j] + off) * (1 - 1e-12)
-            a, b = 0, k
-            while a < b:                     # first value >= q ("left")
-                m = (a + b) >> 1
-                if cum[r, m] + off < q:
-                    a = m + 1
-                else:
-                    b = m
-            out[r, j] = min(a, k - 1)
     return True
+
+
+@njit(cache=True, nogil=True)
+def _search(cum, r, u):  # pragma: no cover - compiled
+    """Index of uniform ``u`` in row ``r`` of ``cum``: the first value with cum[r] + 2 r >=
+    (u + 2 r)(1 - 1e-12) ("left"), at most the last."""
+    k = cum.shape[1]
+    off = 2.0 * r
+    q = (u + off) * (1 - 1e-12)
+    a, b = 0, k
+    while a < b:
+        m = (a + b) >> 1
+        if cum[r, m] + off < q:
+            a = m + 1
+        else:
+            b = m
+    return min(a, k - 1)
 
 
 def _chol2(c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -263,23 +298,25 @@ def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, 
             use = which == mi
             if not use.any():
                 continue
+            # this model's samples only (row ri, sample si, cell ci), in the order of the whole
+            # chunk: each element's arithmetic is the one the whole chunk had, the others' is not done.
+            # Gathered by flat indices into the chunk's [n, M] and [n, K] arrays: the same elements
+            # as indexing by (ri, ci), in a third of the time
+            at = np.flatnonzero(use)                        # ri M + si
+            ri, si = np.divmod(at, M)
             cum = np.cumsum(f.weight[sl], -1)
             cum[:, -1] = 1.0
-            c = _pick(cum, draws.u_cell)
-            # this model's samples only (row ri, sample si, cell ci), in the order of the whole
-            # chunk: each element's arithmetic is the one the whole chunk had, the others' is not done
-            ri, si = np.nonzero(use)
-            at = (ri, c[ri, si])
+            cell = ri * cum.shape[1] + _pick_at(cum, draws.u_cell, ri, si)    # ri K + ci
             zs = draws.z[si]
-            l00, l10, l11 = (v[at] for v in _chol2(f.cov2[sl]))
-            m2 = f.mean2[sl][at]
+            l00, l10, l11 = (v.ravel()[cell] for v in _chol2(f.cov2[sl]))
+            m2 = f.mean2[sl].reshape(-1, 2)[cell]
             p0 = m2[..., 0] + l00 * zs[:, 0]                # path: l0; wiener: X_now
             p1 = m2[..., 1] + l10 * zs[:, 0] + l11 * zs[:, 1]   # path: a;  wiener: current rate
-            b, kind, gn = f.b[sl][at], f.kind[sl][at], f.g_now[sl][at]
+            b, kind, gn = (v[sl].ravel()[cell] for v in (f.b, f.kind, f.g_now))
             tn, th = t_now[sl][ri], thr[sl][ri]
             with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
                 if f.model == "wiener":
-                    sig, rq = f.sigma[sl][at], f.rate_sd[sl][at]
+                    sig, rq = (v[sl].ravel()[cell] for v in (f.sigma, f.rate_sd))
                     d = th - p0
                     # the rate's own random walk adds q dg^3 / 3 to the level variance at dg: each
                     # sample's smooth path X_now + rate dg + z sqrt(q / 3) dg^(3/2) (its rate kept
@@ -298,7 +335,7 @@ def sample_rul(series: list[Series], fits: list[ModelFit], model_w: np.ndarray, 
                     ok = (level < th) & (p1 > 0)
                     t_star = shape_g_inv(kind, np.where(ok, (th - p0) / p1, 0.0), b)
                     r = np.where(level >= th, 0.0, np.where(p1 > 0, t_star - tn, np.inf))
-            rul[at[0], si] = np.where(np.isfinite(r), np.maximum(r, 0.0), np.inf)
+            rul.ravel()[at] = np.where(np.isfinite(r), np.maximum(r, 0.0), np.inf)
         out[sl] = rul * span[sl, None]
     return out
 
