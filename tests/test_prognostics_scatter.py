@@ -336,3 +336,30 @@ def test_the_test_that_found_the_wear_recorded_at_the_repair_time_is_not_the_new
         assert got.get("outliers_h") == ([900.0] if when == 900.0 else None), got
         rul[when] = got["rul_median_h"]
     assert rul[900.0] == rul[925.0]
+
+
+def test_series_judged_together_are_each_judged_alone():
+    """scatter.by_length stacks the series of equal length into rows: each series' unrecorded
+    repair and tests off their neighbours are those it has judged alone (falls, failed diagnoses,
+    a last test that jumped, signed zeros, lengths from 1 to 40 mixed)."""
+    from eha_health.prognostics.scatter import isolated_outliers_of, last_persistent_falls
+    rng = np.random.default_rng(3)
+    series = []
+    for _ in range(400):
+        n = int(rng.integers(1, 40))
+        t = np.cumsum(rng.uniform(1, 50, n))
+        k = np.cumsum(rng.exponential(0.01, n)) + rng.normal(0, 0.01, n)
+        if n > 3 and rng.random() < 0.5:
+            k[rng.integers(1, n):] -= rng.uniform(0, 0.5)              # a repair nobody recorded
+        if n > 3 and rng.random() < 0.5:
+            k[rng.integers(0, n)] += rng.choice([-1, 1]) * rng.uniform(0.05, 0.5)   # a failed diagnosis
+        if rng.random() < 0.1:
+            k = np.where(rng.random(n) < 0.3, -0.0, k)
+        series.append((t, k, np.full(n, rng.uniform(0.002, 0.02))))
+    falls = last_persistent_falls(series, S.outlier_sigma, S.repair_fall)
+    assert falls == [last_persistent_fall(*x, S.outlier_sigma, S.repair_fall) for x in series]
+    assert sum(f is not None for f in falls) > 20
+    together = isolated_outliers_of(series, S.outlier_sigma, S.outlier_min_jump)
+    alone = [isolated_outliers(*x, S.outlier_sigma, S.outlier_min_jump) for x in series]
+    assert all(a[1] == b[1] and np.array_equal(a[0], b[0]) for a, b in zip(together, alone))
+    assert sum(a[0].any() for a in alone) > 20 and sum(a[1] for a in alone) > 5

@@ -60,7 +60,8 @@ from .config import PrognosticsError, Settings, load_settings
 from .degradation import (ModelFit, Series, akaike_weights, degradation_segment, fit_models, rise_onset,
                           shape_g, shape_g_inv)
 from .prior_cache import FleetPriorCache
-from .scatter import isolated_outliers, last_persistent_fall, noise_estimate
+from .scatter import (isolated_outliers, isolated_outliers_of, last_persistent_fall, last_persistent_falls,
+                      noise_estimate)
 from .records import trend_start_h
 from .thresholds import FAULTS, threshold_values
 
@@ -633,9 +634,12 @@ def overall(preds: dict[str, FaultPrediction], n_tests: int, groups: list[set] |
 
 # ----------------------------------------------------------------------------- per-fault preparation
 def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold: float, n_tests: int,
-                  s: Settings, check_last: bool = True, repaired: bool = True) -> tuple[FaultPrediction, Series | None]:
+                  s: Settings, check_last: bool = True, repaired: bool = True,
+                  fall: int | None | str = "find", outliers: tuple | None = None) -> tuple[FaultPrediction, Series | None]:
     """Degradation segment of one fault's post-repair tests, or the reason there is none
-    (``repaired``: whether a maintenance restarted the trend, for the wording of the reason).
+    (``repaired``: whether a maintenance restarted the trend, for the wording of the reason;
+    ``fall`` and ``outliers``: :func:`scatter.last_persistent_fall` of these tests and
+    :func:`scatter.isolated_outliers` of those from the fall on, where the caller has them).
 
     A fall of K that persists is a repair the history does not hold: the trend restarts there
     (:func:`scatter.last_persistent_fall`, ``unrecorded_repair_h``). Tests far off their
@@ -647,7 +651,8 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
     if n_tests:
         p.k_last, p.std_last = float(k[-1]), float(std[-1])
     std = np.maximum(std, s.prognosis.min_std)     # no diagnosis is exact; a zero variance is singular
-    fall = last_persistent_fall(time_h, k, std, s.prognosis.outlier_sigma, s.prognosis.repair_fall)
+    if fall == "find":
+        fall = last_persistent_fall(time_h, k, std, s.prognosis.outlier_sigma, s.prognosis.repair_fall)
     repaired = repaired or fall is not None
     since = "since the last repair" if repaired else "in the history (no repair recorded)"
     if fall is not None:
@@ -662,10 +667,11 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
         p.outliers_h = [float(time_h[0])]
         time_h, k, std = time_h[1:], k[1:], std[1:]
         n_tests = len(k)
+        outliers = None      # the caller's were judged with it
     if n_tests < s.prognosis.min_tests:
         p.reason = f"only {n_tests} test(s) {since} (fewer than {s.prognosis.min_tests}): no RUL"
         return p, None
-    off, last = isolated_outliers(time_h, k, std, s.prognosis.outlier_sigma, s.prognosis.outlier_min_jump)
+    off, last = outliers or isolated_outliers(time_h, k, std, s.prognosis.outlier_sigma, s.prognosis.outlier_min_jump)
     if last and check_last:
         p.last_off_trend = True
         p.last_gap_h = float(time_h[-1] - time_h[-2])
@@ -922,13 +928,20 @@ def _predict_fault(hist, ids: list[str], fi: int, thr: float, s: Settings) -> li
     """Predictions of fault ``fi`` for actuators ``ids`` from the tests since its last repair."""
     f = FAULTS[fi]
     plist = []
-    for a in ids:
-        h = hist.actuators[a]
-        since = h.since_repair(f)
+    hs = [hist.actuators[a] for a in ids]
+    sinces = [h.since_repair(f) for h in hs]
+    # every actuator's unrecorded repair and tests off their neighbours at once (scatter.by_length:
+    # the series of equal length judged together), as prepare_fault would find them one by one
+    tests = [(h.time_h[i], h.k[i, fi], np.maximum(h.std[i, fi], s.prognosis.min_std)) for h, i in zip(hs, sinces)]
+    falls = last_persistent_falls(tests, s.prognosis.outlier_sigma, s.prognosis.repair_fall)
+    offs = isolated_outliers_of([x if at is None else tuple(v[at:] for v in x) for x, at in zip(tests, falls)],
+                                s.prognosis.outlier_sigma, s.prognosis.outlier_min_jump)
+    for h, since, fall, off in zip(hs, sinces, falls, offs):
         # a maintenance at or before the first test also restarts it (the usage clock's history
         # starts at the new unit's first test: "no repair recorded" was said of a replaced unit)
         p, _ = prepare_fault(h.time_h[since], h.k[since, fi], h.std[since, fi], thr, int(since.sum()), s,
-                             repaired=not since.all() or trend_start_h(h.repairs, f) is not None)
+                             repaired=not since.all() or trend_start_h(h.repairs, f) is not None,
+                             fall=fall, outliers=off)
         plist.append(p)
     predict_series(plist, np.full(len(plist), thr), fi, s)
     return plist
