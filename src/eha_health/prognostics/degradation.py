@@ -399,9 +399,10 @@ def concat_fits(parts: list[ModelFit]) -> ModelFit:
     return ModelFit(**vals)
 
 
-def fit_model(series: list[Series], grid: Grid, chunk_cells: int = 400_000) -> ModelFit:
-    """Run the filter of every grid cell over every series; keep the top cells per series."""
-    t, y, r, mask = _batch(series)
+def fit_model(series: list[Series], grid: Grid, chunk_cells: int = 400_000, batch=None) -> ModelFit:
+    """Run the filter of every grid cell over every series; keep the top cells per series
+    (``batch``: :func:`_batch` of the series where the caller has it; the filter does not write it)."""
+    t, y, r, mask = batch or _batch(series)
     step = max(1, chunk_cells // len(grid))
     parts = []
     for a in range(0, len(y), step):
@@ -426,7 +427,8 @@ def fit_models(series: list[Series], ms: ModelSettings) -> tuple[list[ModelFit],
     """Fit every model of the settings; returns the fits and the criteria [S, n_models]
     (:func:`model_criteria`; :func:`akaike_weights` turns them into weights)."""
     grids = model_grids(ms)
-    fits = [fit_model(series, grids[m]) for m in ms.names]
+    batch = _batch(series)                  # the same padded arrays for every model
+    fits = [fit_model(series, grids[m], batch=batch) for m in ms.names]
     return fits, model_criteria(fits, ms)
 
 

@@ -902,7 +902,7 @@ def life_estimate(p: FaultPrediction, min_points: int = 1) -> tuple[float, float
     horizon); and tau at its ``min_points``-th point since onset, the age it had to reach to count."""
     if p.samples is None or p.series is None:
         return math.nan, math.nan, math.nan
-    p05, med = weighted_quantiles(p.samples, p.weights, (0.05, 0.5))
+    p05, med = p.quantiles()[:2]      # the summary's own (each quantile is computed alone): sorted once
     tau = float(p.series.tau_h[-1])
     if not np.isfinite(med) or tau + med <= 0:
         return math.nan, math.nan, math.nan
