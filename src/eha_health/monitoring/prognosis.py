@@ -101,7 +101,7 @@ class PrognosisStep:
 
     def stop(self) -> None:
         """From any thread: the running and later steps append their test but skip the prognosis
-        (a fleet-prior fit of ~20 s on 1000 actuators would hold up the node's shutdown); an append
+        (a fleet-prior fit of ~10 s on 1000 actuators would hold up the node's shutdown); an append
         waiting for another writer's lock (up to 60 s) gives up, its test not appended."""
         self._stopping.set()
 

@@ -128,7 +128,7 @@ class MonitorNode(Node):
         self._closing = False
         self._worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eha-diagnose")
         # the stored history's RUL, published before the first test (a restarted monitor gave none: probe 11),
-        # in a thread of its own: in the diagnosis worker its fleet-prior fit (~20 s on 1000 actuators) held
+        # in a thread of its own: in the diagnosis worker its fleet-prior fit (~10 s on 1000 actuators) held
         # up the first test's diagnosis. Started by the first poll, so a node whose __init__ fails after
         # this line leaves no fit running that nothing would stop.
         self._start_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eha-stored")
