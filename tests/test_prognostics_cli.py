@@ -565,3 +565,21 @@ def test_a_back_filled_repair_says_where_the_trend_restarts(db, capsys):
     assert code == 0 and "(the trend of fsj, bkl restarts there)" in out and "gm at 300 h" in err
     code, out, _ = run(capsys, ["history", "list", "--history", str(db), "--json"])
     assert {(m["fault"], m["time_h"]) for m in json.loads(out)["maintenance"]} >= {("gm", 300.0), ("gm", 100.0), ("all", 200.0)}
+
+
+def test_a_history_csv_whose_last_line_has_no_end_of_line_is_said(tmp_path, capsys):
+    """A HISTORY.csv cut inside its last value (a file still being written) reads as a shorter
+    number, 0.4567 as 0.4, and cannot be told from a whole one: `prognose` and `history import` say
+    that the last line has no end of line (an independent probe, 2026-12-07); a short last line is
+    refused (test_what_a_history_csv_would_misread_is_refused)."""
+    rows = fleet_rows(n_act=1, n_tests=8)
+    whole = write_csv(tmp_path / "whole.csv", rows)
+    cut = tmp_path / "cut.csv"
+    cut.write_bytes(whole.read_bytes().rstrip(b"\r\n")[:-2])          # the last value loses 2 digits
+    said = "has no end of line: if the file was still being written, its last value may be cut short"
+    for path, noted in ((whole, False), (cut, True)):
+        code, out, err = run(capsys, ["prognose", "--history", str(path), "--json"])
+        assert code == 0 and json.loads(out)["actuators"], err
+        assert (said in err) == noted, err
+        code, out, err = run(capsys, ["history", "import", str(path), "--history", str(tmp_path / f"{path.stem}.db")])
+        assert code == 0 and (said in err) == noted, err

@@ -252,12 +252,22 @@ def _csv_duplicate_hint(e) -> str:
 
 
 def _maintenance_beside(history_csv, maintenance) -> None:
-    """Say so when ``history export``'s maintenance file lies beside a HISTORY.csv read without it."""
+    """Say so when ``history export``'s maintenance file lies beside a HISTORY.csv read without it,
+    and when the HISTORY.csv's last line has no end of line."""
     from ..prognostics.history_csv import maintenance_beside
     beside = maintenance_beside(history_csv)
     if maintenance is None and beside.is_file():
         print(f"note: {beside} beside it is not read: its repairs and replacements count only with "
               f"--maintenance {beside}", file=sys.stderr)
+    # a file cut inside its last value reads as a shorter number (0.4567 as 0.4) and cannot be told
+    # from a complete one; a short last line is refused (signals/table.py), a whole one is said
+    with open(history_csv, "rb") as f:
+        f.seek(0, 2)
+        end = f.tell()
+        f.seek(max(end - 1, 0))
+        if end and f.read(1) not in (b"\n", b"\r"):
+            print(f"note: the last line of {history_csv} has no end of line: if the file was still being "
+                  f"written, its last value may be cut short", file=sys.stderr)
 
 
 def _csv_out(path: str, what: str, db: Path) -> Path:
