@@ -861,13 +861,12 @@ def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings,
     tau = float(p.series.tau_h[-1])
     base = p.raw_samples if p.raw_samples is not None else p.samples
     w = prior_weights(base[None, :], np.array([tau]), prior)[0]
-    if p.mixed_without is not None:
-        # the even mixture with and without an unconfirmed last test: the prior weighs the lives
-        # within each future and each keeps its half (weighed as one, the "no wear without it"
-        # half has no finite life and vanished: P(failure) 0.5 became 1 beside a fleet)
-        for half in (p.mixed_without, ~p.mixed_without):
-            tot = w[half].sum()
-            w[half] = w[half] * (half.sum() / tot) if tot > 0 else 1.0
+    # the even mixture with and without an unconfirmed last test: the prior weighs the lives
+    # within each future and each keeps its half (weighed as one, the "no wear without it"
+    # half has no finite life and vanished: P(failure) 0.5 became 1 beside a fleet)
+    halves = None if p.mixed_without is None else (p.mixed_without, ~p.mixed_without)
+    for half in halves or ():
+        _keep_share(w, half)
     # the members qualified by lasting prior.entry_h since onset: of the lives shorter than that
     # they tell nothing the actuators still waiting to qualify could not belie. In the share of the
     # wearing fleet that waits (``unseen``), a life shorter keeps the weight of the unit's own data
@@ -875,17 +874,14 @@ def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings,
     # of 40 units waiting, and the prior moved the short ones 2x late: 14 of 65 failed before their
     # 5 % quantile; an independent probe, 2026-12-07.)
     short = tau + base < prior.entry_h
-    lam = prior.unseen if prior.waiting else 0.0
-    if lam > 0 and short.any():
+    if prior.unseen > 0 and short.any():
         own = w.copy()
-        for half in ([np.ones(len(w), bool)] if p.mixed_without is None else [p.mixed_without, ~p.mixed_without]):
+        for half in halves or (np.ones(len(w), bool),):
             own[half & short] = 1.0
-            rest = half & ~short
-            tot = own[rest].sum()
-            own[rest] = own[rest] * (rest.sum() / tot) if tot > 0 else 1.0
-            tot = w[half].sum()
-            w[half] = w[half] * (half.sum() / tot) if tot > 0 else 1.0
-        w = (1.0 - lam) * w + lam * own
+            _keep_share(own, half & ~short)
+            if halves is None:
+                _keep_share(w, half)
+        w = (1.0 - prior.unseen) * w + prior.unseen * own
     ess = w.sum() ** 2 / max(np.sum(w * w), 1e-300) if w.sum() > 0 else 0.0
     if ess >= 50:
         # the horizon reaches the prior's 99.9 % life (beyond it, samples count as later)
@@ -894,6 +890,13 @@ def apply_fleet_prior(p: FaultPrediction, prior: FleetPrior | None, s: Settings,
         p.weights, p.fleet_prior, p._q = w, True, None
     else:
         p.reason = f"fleet prior not applied: it conflicts with the data (effective samples {ess:.0f})"
+
+
+def _keep_share(w: np.ndarray, part: np.ndarray) -> None:
+    """Scale the weights ``w`` of ``part`` (a mask) in place to sum to its size: the prior moves
+    weight within the part, not into or out of it (all 1 where the prior gives the part none)."""
+    tot = w[part].sum()
+    w[part] = w[part] * (part.sum() / tot) if tot > 0 else 1.0
 
 
 def life_estimate(p: FaultPrediction, min_points: int = 1) -> tuple[float, float, float]:
