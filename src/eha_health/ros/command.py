@@ -191,8 +191,8 @@ class CommandNode(Node):
             for pub in (self.pub_cmd, self.pub_win):
                 pub.wait_for_all_acked(Duration(seconds=timeout_s))
         except KeyboardInterrupt:
-            # told to stop while waiting (`launch` stops every node once the monitor is done; rclpy's
-            # handler is gone by teardown): stop waiting, as for a SIGINT before it -- no traceback
+            # told to stop while waiting (`launch` stops every node once the monitor is done; at
+            # teardown run_node's handler raises): stop waiting, as for a SIGINT before it -- no traceback
             pass
 
     def _maybe_start(self) -> None:
