@@ -102,3 +102,18 @@ def test_a_short_last_line_without_an_end_of_line_is_a_cut_file(tmp_path):
     assert list(csv_rows(p, ("a", "b"), TableError))[-1][1] == {"a": "5", "b": "6", "c": "0.0", "d": None}
     p.write_text("a,b,c,d\n1,2,3,4\n5,6,7,8")             # whole, without the final end of line
     assert len(list(csv_rows(p, ("a", "b"), TableError))) == 2
+
+
+def test_a_whole_last_line_without_an_end_of_line_is_noted_where_the_caller_asks(tmp_path):
+    """Cut inside its last value ('8.25' -> '8.2'), a file reads whole: nothing can refuse it, so the
+    reader says it (F6 of an independent probe, 2026-12-07) to a caller that passes ``notes``."""
+    p = tmp_path / "t.csv"
+    p.write_text("a,b\n1,2\n\n5,8.2")
+    notes = []
+    assert len(list(csv_rows(p, ("a", "b"), TableError, notes=notes))) == 2
+    assert notes == ["t.csv line 4: the last line has no end of line: if the file was still being written, its "
+                     "last value may be cut short"]
+    for text in ("a,b\n1,2\n5,8.25\n", "a,b\n1,2\n5,8.25\r\n", "a,b\n1,2\n5,8.25\n\n"):
+        p.write_text(text)
+        notes = []
+        assert len(list(csv_rows(p, ("a", "b"), TableError, notes=notes))) == 2 and notes == [], text

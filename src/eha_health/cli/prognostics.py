@@ -221,7 +221,8 @@ def cmd_history_import(args) -> int:
     # both files read before the store is opened: a bad file creates no store
     maint = read_maintenance_csv(args.maintenance) if args.maintenance else None
     try:   # a row at a time its actuator has a test at already, in the file or in the store
-        recs = read_history_csv(args.file)
+        read = []
+        recs = read_history_csv(args.file, read)
         _maintenance_beside(args.file, args.maintenance)
         with HistoryStore(db, settings) as st:
             notes = st.usage_notes(recs, maint) + (st.backfill_notes(recs) if args.backfill else [])
@@ -231,7 +232,7 @@ def cmd_history_import(args) -> int:
             total = st.count_tests()
     except DuplicateRow as e:
         raise UsageError(f"{e}; {_csv_duplicate_hint(e)}") from None
-    for note in (notes if n else []) + (older if m else []):
+    for note in read + (notes if n else []) + (older if m else []):
         print(f"note: {note}", file=sys.stderr)
     extra = f" and {m} maintenance action(s) from {args.maintenance}" if args.maintenance else ""
     print(f"imported {n} new test(s) from {args.file}{extra} into {db} ({total} tests in all)")
@@ -252,22 +253,12 @@ def _csv_duplicate_hint(e) -> str:
 
 
 def _maintenance_beside(history_csv, maintenance) -> None:
-    """Say so when ``history export``'s maintenance file lies beside a HISTORY.csv read without it,
-    and when the HISTORY.csv's last line has no end of line."""
+    """Say so when ``history export``'s maintenance file lies beside a HISTORY.csv read without it."""
     from ..prognostics.history_csv import maintenance_beside
     beside = maintenance_beside(history_csv)
     if maintenance is None and beside.is_file():
         print(f"note: {beside} beside it is not read: its repairs and replacements count only with "
               f"--maintenance {beside}", file=sys.stderr)
-    # a file cut inside its last value reads as a shorter number (0.4567 as 0.4) and cannot be told
-    # from a complete one; a short last line is refused (signals/table.py), a whole one is said
-    with open(history_csv, "rb") as f:
-        f.seek(0, 2)
-        end = f.tell()
-        f.seek(max(end - 1, 0))
-        if end and f.read(1) not in (b"\n", b"\r"):
-            print(f"note: the last line of {history_csv} has no end of line: if the file was still being "
-                  f"written, its last value may be cut short", file=sys.stderr)
 
 
 def _csv_out(path: str, what: str, db: Path) -> Path:
@@ -313,7 +304,7 @@ def cmd_history_repair(args) -> int:
     with HistoryStore(db, settings) as st:
         st.record_repair(args.actuator, args.fault, args.time_h, action=args.action, note=args.note)
         log = [(m["time_h"], m["fault"]) for m in st.list_maintenance(args.actuator)]
-        at_test = any(t["time_h"] == args.time_h for t in st.list_tests(args.actuator))
+        at_test = st.has_test_at(args.actuator, args.time_h)
     # a back-filled log: where a later maintenance covers the fault, its trend restarts there
     later = {f: trend_start_h(log, f) for f in (FAULT_KEYS if args.fault == "all" else (args.fault,))}
     here = [f for f, t in later.items() if t <= args.time_h]

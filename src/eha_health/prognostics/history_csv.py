@@ -91,14 +91,15 @@ def read_maintenance_csv(path: str | Path) -> list[MaintenanceRecord]:
     return out
 
 
-def read_history_csv(path: str | Path) -> list[HealthRecord]:
+def read_history_csv(path: str | Path, notes: list[str] | None = None) -> list[HealthRecord]:
     """Rows of a HISTORY.csv, validated row by row, in time order per actuator
     (:func:`records.check_order`; a usage that falls is the caller's note,
     :func:`records.batch_usage_notes`). A missing std stays None: the history fills it when read
-    (:func:`records.fill_missing_std`), and the store keeps it NULL."""
+    (:func:`records.fill_missing_std`), and the store keeps it NULL. ``notes`` gets what the
+    reading says of the file (a last line with no end of line, :func:`signals.table.csv_rows`)."""
     path = _existing(path, "HISTORY.csv")
     recs = []
-    for where, row in csv_rows(path, ("actuator_id", "time_h", *K_COLUMNS), PrognosticsError):
+    for where, row in csv_rows(path, ("actuator_id", "time_h", *K_COLUMNS), PrognosticsError, notes=notes):
         if not recs:
             # a column named k_* or std_* that is none of ours is a misspelling: read as absent, a
             # std_fjs left K_FSJ's errors to the estimate; other extra columns are the user's own

@@ -47,11 +47,12 @@ gives the same result.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numba import njit
@@ -60,8 +61,8 @@ from .config import PrognosticsError, Settings, load_settings
 from .degradation import (ModelFit, Series, akaike_weights, degradation_segment, fit_models, rise_onset,
                           shape_g, shape_g_inv)
 from .prior_cache import FleetPriorCache
-from .scatter import (isolated_outliers, isolated_outliers_of, last_persistent_fall, last_persistent_falls,
-                      noise_estimate)
+from .scatter import (first_above_the_rest, isolated_outliers, isolated_outliers_of, last_persistent_fall,
+                      last_persistent_falls, noise_estimate)
 from .records import trend_start_h
 from .thresholds import FAULTS, threshold_values
 
@@ -633,9 +634,17 @@ def overall(preds: dict[str, FaultPrediction], n_tests: int, groups: list[set] |
 
 
 # ----------------------------------------------------------------------------- per-fault preparation
+class _Find(enum.Enum):
+    FALL = "find"
+
+
+#: :func:`prepare_fault`'s default ``fall``: look for it (None is an answer: no fall)
+FIND = _Find.FALL
+
+
 def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold: float, n_tests: int,
                   s: Settings, check_last: bool = True, repaired: bool = True,
-                  fall: int | None | str = "find", outliers: tuple | None = None) -> tuple[FaultPrediction, Series | None]:
+                  fall: int | None | Literal[_Find.FALL] = FIND, outliers: tuple | None = None) -> tuple[FaultPrediction, Series | None]:
     """Degradation segment of one fault's post-repair tests, or the reason there is none
     (``repaired``: whether a maintenance restarted the trend, for the wording of the reason;
     ``fall`` and ``outliers``: :func:`scatter.last_persistent_fall` of these tests and
@@ -651,7 +660,7 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
     if n_tests:
         p.k_last, p.std_last = float(k[-1]), float(std[-1])
     std = np.maximum(std, s.prognosis.min_std)     # no diagnosis is exact; a zero variance is singular
-    if fall == "find":
+    if fall is FIND:
         fall = last_persistent_fall(time_h, k, std, s.prognosis.outlier_sigma, s.prognosis.repair_fall)
     repaired = repaired or fall is not None
     since = "since the last repair" if repaired else "in the history (no repair recorded)"
@@ -659,7 +668,7 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
         p.unrecorded_repair_h = float(time_h[fall])
         time_h, k, std = time_h[fall:], k[fall:], std[fall:]
         n_tests = p.n_tests = len(k)
-    first_off = _first_above_the_rest(k, std, s)
+    first_off = first_above_the_rest(k, std, s.prognosis.outlier_sigma, s.prognosis.repair_fall)
     if first_off:
         # wear does not heal: the test that found the wear, recorded at the repair's time (the
         # trend restarts at or after it), or a failed diagnosis. Kept, it was the new unit's
@@ -736,15 +745,6 @@ def prepare_fault(time_h: np.ndarray, k: np.ndarray, std: np.ndarray, threshold:
         p.candidates = [Series(time_h - time_h[j], k, std, float(time_h[-1] - time_h[j])) for j in js]
         p.candidate_onsets_h = [float(time_h[j]) for j in js]
     return p, ser
-
-
-def _first_above_the_rest(k: np.ndarray, std: np.ndarray, s: Settings, after: int = 3) -> bool:
-    """Whether the first test lies above each of the ``after`` tests after it by a repair's fall:
-    ``prognosis.repair_fall`` [K] and ``outlier_sigma`` times their stated sd (0: never)."""
-    if s.prognosis.outlier_sigma <= 0 or len(k) < after + 1:
-        return False
-    need = max(s.prognosis.outlier_sigma * float(np.median(std[:after + 1])), s.prognosis.repair_fall)
-    return bool(np.all(k[0] - k[1:after + 1] > need))
 
 
 def predict_series(preds: list[FaultPrediction], thresholds: np.ndarray, fault_index: int, s: Settings) -> None:

@@ -19,6 +19,8 @@ to the trend:
   from theirs, and that far from the test before it.
 * :func:`last_persistent_fall`: where K fell and stayed down (medians of 3 tests on each side,
   along the wear rate).
+* :func:`first_above_the_rest`: a first test above each of the 3 after it by a repair's fall
+  (the test that found the wear, recorded at the repair's time).
 """
 from __future__ import annotations
 
@@ -225,6 +227,16 @@ def _scatter(k: np.ndarray, start: np.ndarray, stop: np.ndarray, width: int) -> 
 
 #: (series x tests) per batch of :func:`by_length` (memory ~ 70 x this floats)
 _BATCH = 20_000
+
+
+def first_above_the_rest(k: np.ndarray, std: np.ndarray, sigma: float, min_fall: float, after: int = 3) -> bool:
+    """Whether the first test lies above each of the ``after`` tests after it by a repair's fall:
+    ``min_fall`` [K] and ``sigma`` times their stated sd [K] (``sigma`` 0: never). Wear does not
+    heal: this is the test that found the wear, recorded at the repair's time, or a failed diagnosis."""
+    if sigma <= 0 or len(k) < after + 1:
+        return False
+    need = max(sigma * float(np.median(std[:after + 1])), min_fall)
+    return bool(np.all(k[0] - k[1:after + 1] > need))
 
 
 def last_persistent_fall(t: np.ndarray, k: np.ndarray, std: np.ndarray, sigma: float, min_fall: float,

@@ -409,14 +409,15 @@ class HistoryStore:
             else:
                 check_order([(where, r)], self.latest_times() if latest is None else latest)
 
-    def _has_test_at(self, actuator_id: str, time_h: float) -> bool:
+    def has_test_at(self, actuator_id: str, time_h: float) -> bool:
+        """Whether the actuator has a stored test at ``time_h`` [h] (exactly)."""
         return self.conn.execute("SELECT 1 FROM tests WHERE actuator_id = ? AND time_h = ?",
                                  (actuator_id, float(time_h))).fetchone() is not None
 
     def _check_free(self, items: list[tuple[str, HealthRecord]]) -> None:
         """No stored test at an item's actuator and time (a back-filled test's own check)."""
         for where, r in items:
-            if self._has_test_at(r.actuator_id, r.time_h):
+            if self.has_test_at(r.actuator_id, r.time_h):
                 raise DuplicateRow(f"{where}: duplicate row: actuator {r.actuator_id} already has a test at "
                                    f"time_h={r.time_h:g} (the history)", r)
 
@@ -464,7 +465,7 @@ class HistoryStore:
             by.setdefault(r.actuator_id, []).append(float(r.time_h))
         notes = []
         for a, times in sorted(by.items()):
-            new = [t for t in sorted(set(times)) if not self._has_test_at(a, t)]
+            new = [t for t in sorted(set(times)) if not self.has_test_at(a, t)]
             later = self.later_tests(a, new[0]) if new else []
             new = [t for t in new if later and t < later[-1]]      # a stored test after it
             if new:
@@ -723,8 +724,9 @@ def as_history(obj, settings: Settings | None = None, maintenance: str | Path | 
                notes: list[str] | None = None) -> History:
     """A :class:`History` from a History, a HistoryStore, or a path (``.csv``: HISTORY.csv, else
     SQLite). ``maintenance``: the MAINTENANCE.csv of a HISTORY.csv (:mod:`.history_csv`); a
-    SQLite history holds its own. ``notes``: gets what a HISTORY.csv read says (a usage count
-    that falls, :func:`records.batch_usage_notes`)."""
+    SQLite history holds its own. ``notes``: gets what a HISTORY.csv read says (a last line with
+    no end of line, :func:`.history_csv.read_history_csv`; a usage count that falls,
+    :func:`records.batch_usage_notes`)."""
     if isinstance(obj, History):
         return obj
     if isinstance(obj, HistoryStore):
@@ -737,7 +739,7 @@ def as_history(obj, settings: Settings | None = None, maintenance: str | Path | 
     if path.suffix.lower() == ".csv":
         s = settings or load_settings()
         maint = read_maintenance_csv(maintenance) if maintenance is not None else []
-        recs = read_history_csv(path)
+        recs = read_history_csv(path, notes)
         check_maintenance_times(recs, maint, path, maintenance)
         if notes is not None:
             notes += batch_usage_notes(recs, maint)

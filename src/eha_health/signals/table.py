@@ -17,7 +17,7 @@ from pathlib import Path
 
 
 def csv_rows(path: str | Path, required: tuple[str, ...], error: type[Exception],
-             need: str = "") -> Iterator[tuple[str, dict[str, str | None]]]:
+             need: str = "", notes: list[str] | None = None) -> Iterator[tuple[str, dict[str, str | None]]]:
     """``(where, row)`` for each data row of ``path``; ``where`` is ``"NAME line N"``.
 
     ``error`` is raised for a missing required column (``need``, when given, is added to the
@@ -25,7 +25,9 @@ def csv_rows(path: str | Path, required: tuple[str, ...], error: type[Exception]
     values than columns, a row cut short before a required column (a short row's optional
     cells are None), a short last line without an end of line (a truncated file), or text that
     is not UTF-8. Rows of empty cells are skipped, as blank lines are. The file must exist (the
-    callers say what it should have been).
+    callers say what it should have been). ``notes``, when given, gets a line when the last line
+    is whole but has no end of line: a file cut inside its last value reads 0.4567 as 0.4, and no
+    check can tell that from a complete file.
     """
     path = Path(path)
     data = path.read_bytes()
@@ -69,4 +71,7 @@ def csv_rows(path: str | Path, required: tuple[str, ...], error: type[Exception]
                 raise error(f"{where}: {n} value(s) for {len(cols)} columns on the last line, which has no "
                             f"end of line: the file looks cut short (write empty cells as ,, where a value is "
                             f"not stated)")
+            if cut and reader.line_num == last_line and notes is not None:
+                notes.append(f"{where}: the last line has no end of line: if the file was still being written, "
+                             f"its last value may be cut short")
             yield where, {k: (v.strip() if isinstance(v, str) else v) for k, v in row.items()}
