@@ -39,6 +39,19 @@ AICc = -2 max log L_ML + 2k + 2k(k+1)/(n-k-1), or by their evidence (the default
 with weights w_m ~ prior_m exp(-Delta_m / 2), models with Delta_m > ``aic_delta_max`` dropped; the
 prior (:func:`model_prior`) gives the Wiener model ``stochastic_prior`` and the path models the rest.
 
+Heavy-tailed increments. The Wiener model's likelihood is Gaussian in the increments; wear by
+random shocks (a compound Poisson process) has increments of kurtosis far above 3, and its
+Gaussian posterior over the cells is too sure: one early jump is read as a decelerating time
+scale, the steps between the jumps as a small sigma (an independent probe, 2026-12-07: 12.5 %
+of the failures before the 5 % quantile). The variance of a sample variance is (kurt - 1) s^4 / n,
+not 2 s^4 / n, so the cell weights use the likelihood tempered by alpha = min(1, 2 / (kurt - 1))
+(a sandwich correction; :func:`increment_temper`), kurt the moment ratio of the series' increments
+per sqrt(time), times (n + 1) / (n - 1) (its mean for n Gaussian increments is 3 (n - 1) / (n + 1)),
+less its standard error sqrt(24 / n): Gaussian increments keep alpha = 1 but by chance (without
+that allowance, 38 % of 200 Gaussian series of 15 increments were tempered, down to alpha 0.39;
+with it, 6.5 %, alpha >= 0.52).
+The evidence that compares the models is not tempered.
+
 The filter is written out for the 3-state case and vectorised over (series x grid cells)
 by hand: filterpy's KalmanFilter runs one filter per Python object, and a fleet needs
 ~10^6 filters per prognosis; tests check this one against filterpy step by step.
@@ -358,13 +371,37 @@ def run_filters(grid: Grid, g: np.ndarray, y: np.ndarray, r: np.ndarray, mask: n
     return st
 
 
-def summarise(grid: Grid, st: np.ndarray, g_now: np.ndarray, n_pts: np.ndarray) -> ModelFit:
-    """Posterior over the cells from the filter states [NROW, S, C]: top cells, criteria, RUL inputs."""
+def increment_temper(t: np.ndarray, y: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """alpha [S] of each row of ``t, y, mask`` [S, N] (module docstring, "Heavy-tailed increments"):
+    min(1, 2 / (kurt - 1)), kurt of the increments dy / sqrt(dt) between the points in ``mask`` (its
+    small-sample bias corrected, less its standard error); 1 with
+    fewer than 4 increments or none that differ."""
+    pair = mask[:, 1:] & mask[:, :-1]
+    dt = np.diff(t, axis=1)
+    d = np.where(pair, np.diff(y, axis=1) / np.sqrt(np.where(pair & (dt > 0), dt, 1.0)), 0.0)
+    n = pair.sum(1)
+    nn = np.maximum(n, 1)
+    z = np.where(pair, d - (d.sum(1) / nn)[:, None], 0.0)
+    m2 = (z * z).sum(1) / nn
+    m4 = (z ** 4).sum(1) / nn
+    ok = (n >= 4) & (m2 > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        kurt = np.where(ok, m4 / np.where(ok, m2, 1.0) ** 2 * (n + 1) / np.maximum(n - 1, 1), 3.0)
+    kurt = kurt - np.sqrt(24.0 / np.maximum(n, 1))     # less its standard error (sqrt(24 / n))
+    return np.where(ok, np.minimum(1.0, 2.0 / np.maximum(kurt - 1.0, 1e-9)), 1.0)
+
+
+def summarise(grid: Grid, st: np.ndarray, g_now: np.ndarray, n_pts: np.ndarray,
+              temper: np.ndarray | None = None) -> ModelFit:
+    """Posterior over the cells from the filter states [NROW, S, C]: top cells, criteria, RUL inputs.
+    ``temper`` [S]: the cell weights from the likelihood to this power (:func:`increment_temper`);
+    the evidence and AICc from the whole one."""
     K = min(N_KEEP, len(grid))
     lint = st[LL] + grid.log_prior[None, :]
+    lpost = lint if temper is None else temper[:, None] * st[LL] + grid.log_prior[None, :]
     lml = log_ml(st).max(1)
-    order = np.argsort(-lint, axis=1)[:, :K]
-    top = np.take_along_axis(lint, order, 1)
+    order = np.argsort(-lpost, axis=1)[:, :K]
+    top = np.take_along_axis(lpost, order, 1)
     w = np.exp(top - top[:, :1])
     w /= w.sum(1, keepdims=True)
     rows = np.arange(st.shape[1])[:, None]
@@ -409,7 +446,8 @@ def fit_model(series: list[Series], grid: Grid, chunk_cells: int = 400_000, batc
         sl = slice(a, min(len(y), a + step))
         g, shape = grid_shapes(grid, t[sl])                                 # [s, U, N], [C]
         st = run_filters(grid, g, y[sl], r[sl], mask[sl], shape=shape)
-        parts.append(summarise(grid, st, g[:, shape, -1], mask[sl].sum(1)))
+        temper = increment_temper(t[sl], y[sl], mask[sl]) if grid.model == "wiener" else None
+        parts.append(summarise(grid, st, g[:, shape, -1], mask[sl].sum(1), temper))
     return concat_fits(parts)
 
 

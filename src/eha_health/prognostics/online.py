@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .config import Settings, load_settings
-from .degradation import ModelFit, Series, grid_g, model_grids, model_weights, run_filters, summarise
+from .degradation import ModelFit, Series, grid_g, increment_temper, model_grids, model_weights, run_filters, summarise
 
 
 class OnlineFault:
@@ -77,7 +77,10 @@ class OnlineFault:
     def fit(self) -> tuple[list[ModelFit], np.ndarray]:
         """Model fits and model weights (:func:`degradation.model_weights`)."""
         n = np.array([len(self.tau)])
-        fits = [summarise(self.grids[m], self.state[m], self.g_last[m], n) for m in self.grids]
+        t = np.asarray(self.tau)[None, :] / self.span_h
+        temper = increment_temper(t, np.asarray(self.y)[None, :], np.ones(t.shape, bool))
+        fits = [summarise(self.grids[m], self.state[m], self.g_last[m], n, temper if m == "wiener" else None)
+                for m in self.grids]
         return fits, model_weights(fits, self.models)
 
     def series(self) -> Series:
