@@ -51,7 +51,7 @@ def test_a_shutdown_between_the_loops_check_and_the_wait_set_is_an_interrupt():
 #: A plant that is sent ``{sig}`` while it is being made, and one whose callback never returns
 #: (it sends itself two SIGINTs: the first asks the loop to stop, the second must break out).
 SIGNALLED = """
-import os, signal, sys, time
+import os, signal, sys, threading
 from eha_health.ros import run_node
 from eha_health.ros.plant import PlantNode
 
@@ -66,11 +66,11 @@ class Stuck(PlantNode):
         self.create_timer(0.01, self.stuck)
 
     def stuck(self):
-        for _ in range(2):
-            os.kill(os.getpid(), signal.SIGINT)
-            time.sleep(0.01)
-        while True:
-            time.sleep(0.01)
+        # os.kill of the process itself runs the handler before it returns: the first asks the loop
+        # to stop, the second must raise here; were it not to, the wait below never ends
+        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)
+        threading.Event().wait()
 
 def close(self):
     print("closed", flush=True)
