@@ -72,7 +72,8 @@ class StopOnSignal:
     rclpy's own handler shuts the context down from a thread of its own, whatever the main thread is
     doing: 1 of 200 small nodes given SIGINT hung for good in ``rclpy.shutdown``
     (``uninstall_signal_handlers`` waiting on that thread), another printed a traceback, and CI saw
-    a plant die of SIGSEGV (2026-12-07; ``tools/sigint_probe.py``: with this handler 400 runs clean). Here the main thread does the whole shutdown, in teardown's order.
+    a plant die of SIGSEGV (2026-12-07; ``tools/sigint_probe.py``: with this handler 400 runs
+    clean). Here the main thread does the whole shutdown, in teardown's order.
     """
 
     def __init__(self):
